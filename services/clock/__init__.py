@@ -1,0 +1,1 @@
+"""The lock-step clock service: the only thing that advances simulated time."""

@@ -1,0 +1,1 @@
+"""The controller service: feedback linearisation plus tension distribution, one command per state."""

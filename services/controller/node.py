@@ -1,0 +1,76 @@
+"""The controller node: answers every ``sim/state`` k with one ``controller/command`` k.
+
+It waits until it holds both the state and the setpoint of the same step, computes the tensions with
+:class:`cdpr_controller.core.ControllerCore` and publishes them. A repeated state (the clock asked for a
+resend) is answered again.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import zenoh
+
+from cdpr.protocol import Command, Keys, ProtocolError, Setpoint, State
+from cdpr.scenario import Scenario
+from cdpr.service import Node
+from cdpr.transport import PUBLISH_OPTS, Event, Inbox, RateLimitedLog, log
+from cdpr_controller.core import ControllerCore
+
+
+class ControllerNode(Node):
+    name = "controller"
+
+    def __init__(self, scenario: Scenario, keys: Keys) -> None:
+        super().__init__(keys)
+        self.core = ControllerCore.from_scenario(scenario)
+        self.m = scenario.robot.m
+        self.states: dict[int, State] = {}
+        self.setpoints: dict[int, Setpoint] = {}
+        self.answered = -1
+        self.infeasible = 0
+        self.warn = RateLimitedLog(self.name)
+        self._pub: zenoh.Publisher | None = None
+
+    def declare(self, session: zenoh.Session, inbox: Inbox) -> list[Any]:
+        self._pub = session.declare_publisher(self.keys.command, **PUBLISH_OPTS)
+        return [
+            inbox.subscribe(session, self.keys.state, "state"),
+            inbox.subscribe(session, self.keys.setpoint, "setpoint"),
+            self._pub,
+        ]
+
+    def handle(self, event: Event) -> None:
+        try:
+            if event.kind == "state":
+                state = State.decode(event.payload, self.m)
+                self.states[state.step] = state
+                k, resend = state.step, state.step <= self.answered
+            else:
+                sp = Setpoint.decode(event.payload)
+                self.setpoints[sp.step] = sp
+                k, resend = sp.step, False
+        except ProtocolError as exc:
+            self.warn(f"bad_{event.kind}", f"dropped a bad {event.kind} message: {exc}")
+            return
+        state_k, setpoint_k = self.states.get(k), self.setpoints.get(k)
+        if state_k is not None and setpoint_k is not None and (k > self.answered or resend):
+            self.answer(state_k, setpoint_k)
+
+    def answer(self, state: State, setpoint: Setpoint) -> None:
+        result = self.core.step(state, setpoint)
+        if not result.feasible:
+            self.infeasible += 1
+            self.warn("infeasible", f"step {state.step}: tension distribution {result.status} "
+                      f"(residual {result.residual:.3g}); sending the nearest admissible tensions")
+        assert self._pub is not None
+        self._pub.put(
+            Command(state.step, state.t, tuple(result.tensions.tolist()), result.feasible, result.status).encode()
+        )
+        self.answered = max(self.answered, state.step)
+        for book in (self.states, self.setpoints):
+            for k in [k for k in book if k < state.step]:
+                del book[k]
+
+    def close(self) -> None:
+        log(self.name, f"answered up to step {self.answered}; infeasible distributions: {self.infeasible}")

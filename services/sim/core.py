@@ -1,0 +1,277 @@
+"""Physics core of the sim service: the platform as a DART rigid body pulled by m cables. No I/O.
+
+Model (seed paper §2.3 and §3.1)
+--------------------------------
+* The platform is one rigid body with the robot's mass and full 3×3 inertia about its centre of mass
+  (the body origin). Gravity is (0, 0, −9.81) in every mode.
+* Joint to the world, per robot mode:
+
+  - ``spatial`` and ``point_mass``: a DART ``FreeJoint`` (6 DOF). A point-mass robot is the same free
+    body with every cable attached at the centre of mass, so the cables exert no moment on it.
+  - ``planar``: a DART ``PlanarJoint`` in the ZX plane (translations along z and x, rotation about +y).
+    The constraint is exact, in joint coordinates: the body has 3 DOF, so y, and the rotations about x
+    and z, cannot change (no penalty, no drift).
+
+* Cables are massless, inextensible, pull-only force elements. Each step applies the tension
+  ``f_i ∈ [0, tmax]`` (see :func:`clamp_tensions`) along the unit vector ``d_i`` from ``t + R b_i`` to
+  ``a_i``. The cable's length is not a constraint: a tension-controlled winch pays cable in or out as
+  needed, so only the force's line of action matters. The wrench on the platform is ``W f`` exactly as
+  in :mod:`cdpr.kinematics` (force ``Σ f_i d_i`` and moment ``Σ (R b_i) × f_i d_i`` about the COM).
+* Cable damping (``robot.cable_damping`` = c, N·s/m): the paper's cable is an actuated prismatic joint
+  with viscous damping, whose force opposes the cable's length rate. On the platform this is the extra,
+  bilateral, force ``c·l̇_i`` along ``d_i``: a lengthening cable (l̇_i > 0) pulls the platform back, a
+  shortening one pushes it, and its power ``−Σ c·l̇_i²`` is never positive. It is evaluated with the
+  twist at the start of the step and reported in :attr:`StepReport.damping`, apart from the tensions.
+  The passive U/S joint damping of the Gazebo model (``robot.passive_damping``) has no counterpart in a
+  single-body model and is not simulated.
+* Integration: DART's ``World.step``, semi-implicit (symplectic) Euler. With forces evaluated at
+  ``(q_k, v_k)``: ``v_{k+1} = v_k + dt·M⁻¹(W f + w_g − C v_k)`` and then ``q_{k+1} = q_k ⊕ dt·v_{k+1}``.
+  With dartpy 6.20's ``FreeJoint`` this holds for the world-frame twist at the COM: the world-frame
+  finite difference ``(v_{k+1} − v_k)/dt`` equals :func:`cdpr.dynamics.forward_dynamics` to rounding
+  (tested), and ``t_{k+1} = t_k + dt·ṫ_{k+1}``. DART's body sleeping ("deactivation", on by default
+  in dartpy 6.20: a body slower than 1 cm/s for 0.5 s is frozen) is switched off.
+
+The state is read back from DART in the world frame (``getTransform``, ``getLinearVelocity``,
+``getAngularVelocity`` of the body, whose origin is the COM) and the twist is written through the
+joint's world-frame setters, so nothing here depends on the frame of a joint's generalized velocities.
+The same inputs give bit-identical outputs; nothing is random and nothing lives in module globals.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import dartpy as dart
+import numpy as np
+from numpy.typing import ArrayLike
+
+from cdpr.robot import GRAVITY, Robot
+from cdpr.rotation import Array, matrix_to_quat
+
+_ORTHONORMAL_TOL = 1e-6  # a rotation given to the sim must satisfy ‖RᵀR − I‖∞ ≤ this, and det R > 0
+_PLANAR_TOL = 1e-9  # out-of-plane pose/twist components a planar robot tolerates (then set to 0)
+
+
+def clamp_tensions(commanded: np.ndarray, tmax: float) -> tuple[np.ndarray, int, int]:
+    """What the cables can apply: negatives → 0 (a cable only pulls), above ``tmax`` → ``tmax``.
+
+    Returns ``(applied, n_clamped_low, n_clamped_high)``. Pure: ``commanded`` is not modified. ``tmin``
+    is not enforced here (that is the controller's business). A NaN raises ``ValueError``.
+    """
+    f = np.asarray(commanded, dtype=float)
+    if np.isnan(f).any():
+        raise ValueError("tensions contain NaN")
+    low = int(np.count_nonzero(f < 0.0))
+    high = int(np.count_nonzero(f > tmax))
+    return np.minimum(np.maximum(f, 0.0), tmax), low, high
+
+
+def _readonly(a: Array) -> Array:
+    a.flags.writeable = False
+    return a
+
+
+@dataclass(frozen=True)
+class PlatformState:
+    """The platform after ``step`` steps, world frame, twist at the centre of mass. Arrays are read-only."""
+
+    step: int
+    t: float
+    position: np.ndarray  # (3,) t, the COM
+    quaternion: np.ndarray  # (4,) [qx, qy, qz, qw], qw ≥ 0
+    rotation: np.ndarray  # (3, 3) R, platform → world
+    twist: np.ndarray  # (6,) [v; ω]
+    cable_lengths: np.ndarray  # (m,) ‖a_i − t − R b_i‖
+    cable_rates: np.ndarray  # (m,) l̇ = J v
+    tensions: np.ndarray  # (m,) as applied (clamped) during the step that led here; zeros at step 0
+
+
+@dataclass(frozen=True)
+class StepReport:
+    """What one step did with the commanded tensions."""
+
+    applied: np.ndarray  # (m,) tensions applied after clamping to [0, tmax]
+    clamped_low: int  # how many commanded tensions were below 0
+    clamped_high: int  # how many were above tmax
+    # (m,) cable damping force c·l̇_i applied along d_i on top of the tensions (> 0 pulls, < 0 pushes)
+    damping: np.ndarray = field(default_factory=lambda: np.zeros(0))
+
+
+@dataclass(frozen=True)
+class _Snapshot:
+    """Everything one step needs about the current state, read from DART once per step. Read-only."""
+
+    position: Array  # (3,)
+    rotation: Array  # (3, 3)
+    twist: Array  # (6,) [v; ω]
+    lengths: Array  # (m,)
+    directions: Array  # (m, 3) d_i, rows of W's force block
+    moments: Array  # (m, 3) (R b_i) × d_i, rows of W's moment block
+    rates: Array  # (m,) l̇ = J v = −(d_i · v + ((R b_i) × d_i) · ω)
+
+
+# ε_ijk, so that einsum("ijk,nj,nk->ni", ε, x, y) is the row-wise cross product x × y (≈4× faster
+# than np.cross on (m, 3) arrays, and exact: each component is one product minus another).
+_LEVI_CIVITA = np.zeros((3, 3, 3))
+_LEVI_CIVITA[0, 1, 2] = _LEVI_CIVITA[1, 2, 0] = _LEVI_CIVITA[2, 0, 1] = 1.0
+_LEVI_CIVITA[0, 2, 1] = _LEVI_CIVITA[2, 1, 0] = _LEVI_CIVITA[1, 0, 2] = -1.0
+_LEVI_CIVITA.flags.writeable = False
+
+
+class PlatformSim:
+    """A DART world holding the platform of ``robot``, stepped by cable tensions.
+
+    ``dt`` is the step, s. The initial pose defaults to the robot's home pose and the twist to rest.
+    ``t`` is ``step_count * dt`` (computed, not accumulated).
+    """
+
+    def __init__(
+        self,
+        robot: Robot,
+        dt: float = 1e-3,
+        position: ArrayLike | None = None,
+        rotation: ArrayLike | None = None,
+        twist: ArrayLike | None = None,
+    ) -> None:
+        if not (np.isfinite(dt) and dt > 0.0):
+            raise ValueError(f"dt must be a positive finite number of seconds (got {dt})")
+        self.robot = robot
+        self.dt = float(dt)
+        self.step_count = 0
+        self._a = np.array(robot.frame_points, dtype=float)
+        self._b = np.array(robot.platform_points, dtype=float)
+        self._planar = robot.mode == "planar"
+        self._zero3 = np.zeros(3)
+        self._world = dart.simulation.World()
+        self._world.setGravity(GRAVITY)
+        self._world.setTimeStep(self.dt)
+        sleep = self._world.getDeactivationOptions()
+        sleep.mEnabled = False  # a slow platform must never be frozen
+        self._world.setDeactivationOptions(sleep)
+        skeleton = dart.dynamics.Skeleton("platform")
+        if self._planar:
+            joint, body = skeleton.createPlanarJointAndBodyNodePair()
+            joint.setZXPlane()  # generalized coordinates [z, x, θ about +y]
+        else:
+            joint, body = skeleton.createFreeJointAndBodyNodePair()
+        body.setName("platform")
+        body.setInertia(dart.dynamics.Inertia(robot.mass, np.zeros(3), np.array(robot.inertia, dtype=float)))
+        self._world.addSkeleton(skeleton)
+        self._joint = joint
+        self._body = body
+        self._tensions = _readonly(np.zeros(robot.m))
+        self._snap: _Snapshot | None = None
+        self.reset(position, rotation, twist)
+
+    @property
+    def t(self) -> float:
+        return self.step_count * self.dt
+
+    # -- state ------------------------------------------------------------------------------------
+    def reset(self, position: ArrayLike | None = None, rotation: ArrayLike | None = None, twist: ArrayLike | None = None) -> None:
+        """Back to step 0 at the given pose and twist (defaults: home pose, at rest)."""
+        p = _vector(self.robot.home_position if position is None else position, 3, "position")
+        R = _rotation(self.robot.home_rotation if rotation is None else rotation)
+        v = _vector(np.zeros(6) if twist is None else twist, 6, "twist")
+        if self._planar:
+            self._set_planar(p, R, v)
+        else:
+            tf = dart.math.Isometry3()
+            tf.set_rotation(R)
+            tf.set_translation(p)
+            world = dart.dynamics.Frame.World()
+            self._joint.setTransform(tf, world)
+            self._joint.setLinearVelocity(v[:3], world, world)
+            self._joint.setAngularVelocity(v[3:], world, world)
+        self._body.clearExternalForces()
+        self._world.reset()
+        self._snap = None
+        self.step_count = 0
+        self._tensions = _readonly(np.zeros(self.robot.m))
+
+    def _set_planar(self, p: Array, R: Array, v: Array) -> None:
+        theta = float(np.arctan2(R[0, 2], R[0, 0]))  # R = Ry(θ) = [[c, 0, s], [0, 1, 0], [−s, 0, c]]
+        c, s = np.cos(theta), np.sin(theta)
+        Ry = np.array([[c, 0.0, s], [0.0, 1.0, 0.0], [-s, 0.0, c]])
+        off_plane = {
+            "position y": abs(p[1]),
+            "rotation (not about y)": float(np.abs(R - Ry).max()),
+            "twist v_y": abs(v[1]),
+            "twist ω_x, ω_z": max(abs(v[3]), abs(v[5])),
+        }
+        for what, err in off_plane.items():
+            if err > _PLANAR_TOL:
+                raise ValueError(f"a planar robot moves in the x–z plane: {what} must be 0 (got {err:.3g})")
+        self._joint.setPositions(np.array([p[2], p[0], theta]))
+        self._joint.setVelocities(np.array([v[2], v[0], v[4]]))
+
+    def _snapshot(self) -> _Snapshot:
+        """The current state's geometry, computed at most once per step (until the next step or reset)."""
+        if self._snap is not None:
+            return self._snap
+        tf = self._body.getTransform()
+        p, R = tf.translation(), tf.rotation()
+        v, w = self._body.getLinearVelocity(), self._body.getAngularVelocity()
+        rb = self._b @ R.T  # rows R b_i
+        vec = self._a - p - rb  # rows l_i (eq. 2)
+        lengths = np.sqrt(np.einsum("ij,ij->i", vec, vec))
+        d = vec / lengths[:, None]
+        moments = np.einsum("ijk,nj,nk->ni", _LEVI_CIVITA, rb, d)
+        rates = -(d @ v + moments @ w)
+        snap = _Snapshot(
+            *(_readonly(x) for x in (p, R, np.concatenate((v, w)), lengths, d, moments, rates))
+        )
+        self._snap = snap
+        return snap
+
+    def state(self) -> PlatformState:
+        """The current state. Its arrays are read-only and never change afterwards: safe to keep."""
+        s = self._snapshot()
+        return PlatformState(
+            step=self.step_count,
+            t=self.t,
+            position=s.position,
+            quaternion=_readonly(matrix_to_quat(s.rotation)),
+            rotation=s.rotation,
+            twist=s.twist,
+            cable_lengths=s.lengths,
+            cable_rates=s.rates,
+            tensions=self._tensions,
+        )
+
+    # -- dynamics ---------------------------------------------------------------------------------
+    def step(self, tensions: np.ndarray) -> StepReport:
+        """Clamp ``tensions`` (m,) to [0, tmax], apply them and the cable damping, integrate one ``dt``."""
+        commanded = np.asarray(tensions, dtype=float)
+        if commanded.shape != (self.robot.m,):
+            raise ValueError(f"expected {self.robot.m} tensions, got shape {commanded.shape}")
+        applied, low, high = clamp_tensions(commanded, self.robot.tmax)
+        s = self._snapshot()
+        damping = self.robot.cable_damping * s.rates
+        pull = applied + damping
+        body = self._body
+        # Net force at the COM and net moment about it, world coordinates: W (f + c l̇).
+        body.setExtForce(pull @ s.directions, self._zero3, False, True)
+        body.setExtTorque(pull @ s.moments, False)
+        self._world.step()  # semi-implicit Euler; clears the external force and torque afterwards
+        self._snap = None
+        self.step_count += 1
+        self._tensions = _readonly(applied)
+        return StepReport(self._tensions, low, high, _readonly(damping))
+
+
+def _vector(x: ArrayLike, n: int, what: str) -> Array:
+    a = np.array(x, dtype=float).reshape(-1)
+    if a.shape != (n,) or not np.isfinite(a).all():
+        raise ValueError(f"{what} must be {n} finite numbers (got {np.asarray(x).tolist()})")
+    return a
+
+
+def _rotation(x: ArrayLike) -> Array:
+    R = np.array(x, dtype=float)
+    if R.shape != (3, 3) or not np.isfinite(R).all():
+        raise ValueError("rotation must be a finite 3×3 matrix")
+    err = float(np.abs(R.T @ R - np.eye(3)).max())
+    if err > _ORTHONORMAL_TOL or np.linalg.det(R) <= 0.0:
+        raise ValueError(f"rotation must be a proper rotation matrix (‖RᵀR − I‖ = {err:.3g}, det = {np.linalg.det(R):.3g})")
+    return R

@@ -1,0 +1,129 @@
+"""The sim node: a Zenoh shell around :class:`cdpr_sim.core.PlatformSim`.
+
+Step k is integrated only when both the clock's tick k and a valid command k have arrived; the state
+at step k+1 is published right after. On tick k while at step k the state k is published (again, if
+the tick is repeated: that is how the clock asks for a resend). Bad commands are dropped with a
+one-line log; out-of-range tensions are clamped to [0, tmax] and counted.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+import zenoh
+
+from cdpr.protocol import Command, Keys, ProtocolError, State, Tick
+from cdpr.scenario import Scenario
+from cdpr.service import Node
+from cdpr.transport import PUBLISH_OPTS, Event, Inbox, RateLimitedLog, log
+from cdpr_sim.core import PlatformSim, PlatformState
+
+
+def state_message(s: PlatformState, clamped: int) -> State:
+    return State(
+        step=s.step,
+        t=s.t,
+        pose=(*s.position.tolist(), *s.quaternion.tolist()),
+        twist=tuple(s.twist.tolist()),
+        cable_lengths=tuple(s.cable_lengths.tolist()),
+        tensions=tuple(s.tensions.tolist()),
+        clamped=clamped,
+    )
+
+
+class SimNode(Node):
+    name = "sim"
+
+    def __init__(self, scenario: Scenario, keys: Keys) -> None:
+        super().__init__(keys)
+        self.scenario = scenario
+        self.total_steps = scenario.total_steps
+        self.sim = PlatformSim(scenario.robot, scenario.dt, scenario.initial_position, scenario.initial_rotation)
+        self.m = scenario.robot.m
+        self.allowed = -1  # highest tick received
+        self.seen_ticks: set[int] = set()  # ticks received for steps not yet taken (a repeat asks for a resend)
+        self.published_step = -1
+        self.pending: Command | None = None  # a valid command for the current step, waiting for its tick
+        self.clamped = 0
+        self.counters = {"bad_commands": 0, "stale_commands": 0, "future_commands": 0, "bad_ticks": 0}
+        self.warn = RateLimitedLog(self.name)
+        self._pub: zenoh.Publisher | None = None
+
+    # -- wiring -----------------------------------------------------------------------------------
+    def declare(self, session: zenoh.Session, inbox: Inbox) -> list[Any]:
+        self._pub = session.declare_publisher(self.keys.state, **PUBLISH_OPTS)
+        return [
+            inbox.subscribe(session, self.keys.tick, "tick"),
+            inbox.subscribe(session, self.keys.command, "command"),
+            self._pub,
+        ]
+
+    def handle(self, event: Event) -> None:
+        if event.kind == "tick":
+            try:
+                tick = Tick.decode(event.payload)
+            except ProtocolError as exc:
+                self.counters["bad_ticks"] += 1
+                self.warn("bad_tick", f"dropped a bad clock/tick: {exc}")
+                return
+            self.on_tick(tick.step)
+        elif event.kind == "command":
+            try:
+                cmd = Command.decode(event.payload, self.m)
+            except ProtocolError as exc:
+                self.counters["bad_commands"] += 1
+                self.warn("bad_command", f"dropped a bad controller/command: {exc}")
+                return
+            self.on_command(cmd)
+
+    # -- the step logic ---------------------------------------------------------------------------
+    @property
+    def step(self) -> int:
+        return self.sim.step_count
+
+    def publish_state(self) -> None:
+        assert self._pub is not None
+        self._pub.put(state_message(self.sim.state(), self.clamped).encode())
+        self.published_step = self.step
+
+    def on_tick(self, k: int) -> None:
+        if k > self.allowed:
+            self.allowed = k
+        repeat = k in self.seen_ticks
+        if k >= self.step:
+            self.seen_ticks.add(k)
+        if k != self.step:
+            return
+        if self.published_step != self.step or repeat:
+            self.publish_state()
+        if self.pending is not None:
+            cmd, self.pending = self.pending, None
+            self.on_command(cmd)
+
+    def on_command(self, cmd: Command) -> None:
+        if cmd.step < self.step:
+            self.counters["stale_commands"] += 1  # a duplicate or late answer for a step already taken
+            return
+        if cmd.step > self.step or cmd.step >= self.total_steps:
+            self.counters["future_commands"] += 1
+            self.warn("future_command", f"dropped controller/command for step {cmd.step}: the sim is at step {self.step}")
+            return
+        if self.step > self.allowed:
+            self.pending = cmd  # the controller was quicker than the tick: wait for the clock
+            return
+        report = self.sim.step(np.asarray(cmd.tensions))
+        if report.clamped_low or report.clamped_high:
+            self.clamped += 1
+            self.warn(
+                "clamped",
+                f"step {cmd.step}: clamped {report.clamped_low} tension(s) below 0 and "
+                f"{report.clamped_high} above tmax = {self.scenario.robot.tmax:g} N",
+            )
+        self.seen_ticks.discard(cmd.step)
+        self.publish_state()
+
+    def close(self) -> None:
+        bad = {k: v for k, v in self.counters.items() if v}
+        log(self.name, f"stopped at step {self.step}/{self.total_steps}; clamped commands: {self.clamped}"
+            + (f"; {bad}" if bad else ""))

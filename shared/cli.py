@@ -1,0 +1,347 @@
+"""The ``cdpr`` command. Results go to stdout as JSON (so other tools can read them), logs to stderr.
+
+An invalid file or argument prints one line ``cdpr: error: …`` on stderr and exits with code 2.
+"""
+
+from __future__ import annotations
+
+import json
+import sys
+from collections.abc import Callable
+from typing import Any, NoReturn
+
+import click
+import numpy as np
+
+from cdpr.errors import InputError
+
+
+def _fail(message: str) -> NoReturn:
+    click.echo(f"cdpr: error: {message}", err=True)
+    sys.exit(2)
+
+
+def _emit(obj: Any) -> None:
+    click.echo(json.dumps(obj))
+
+
+class _Group(click.Group):
+    """Turns InputError anywhere below into one line and exit code 2."""
+
+    def invoke(self, ctx: click.Context) -> Any:
+        try:
+            return super().invoke(ctx)
+        except InputError as exc:
+            _fail(str(exc))
+
+
+@click.group(cls=_Group, context_settings={"help_option_names": ["-h", "--help"]})
+@click.version_option(package_name="cdpr")
+def cli() -> None:
+    """cdpr: a networked simulator for cable-driven parallel robots.
+
+    Physics on DART, services talking over Zenoh, everything logged to Rerun.
+    """
+
+
+# ------------------------------------------------------------------------------------------------
+# Robot tools
+
+
+@cli.command()
+@click.argument("robot", required=False)
+def robots(robot: str | None) -> None:
+    """List the shipped robots, or print the summary of ROBOT (a name or a YAML path)."""
+    from cdpr.robot import load_robot, shipped_robots
+
+    if robot is None:
+        out = []
+        for name in shipped_robots():
+            r = load_robot(name)
+            out.append({"name": name, "mode": r.mode, "cables": r.m, "mass": r.mass, "description": r.description})
+        _emit(out)
+    else:
+        _emit(load_robot(robot).summary())
+
+
+def _pose(values: tuple[float, ...]) -> tuple[np.ndarray, np.ndarray]:
+    from cdpr.rotation import rpy_to_matrix
+
+    if len(values) not in (3, 6):
+        raise InputError(f"--pose: expected X Y Z [ROLL PITCH YAW], got {len(values)} number(s)")
+    if not np.all(np.isfinite(values)):
+        raise InputError("--pose: every number must be finite")
+    rpy = values[3:] if len(values) == 6 else (0.0, 0.0, 0.0)
+    return np.array(values[:3]), rpy_to_matrix(*rpy)
+
+
+def _pose_args(f: Callable[..., Any]) -> Callable[..., Any]:
+    return click.option(
+        "--pose", "pose", type=float, multiple=True, required=True, help="X Y Z [ROLL PITCH YAW] (m, rad)"
+    )(f)
+
+
+class _Floats(click.ParamType):
+    name = "numbers"
+
+
+def _collect_pose(ctx: click.Context, pose: tuple[float, ...]) -> tuple[float, ...]:
+    extra = tuple(float(x) for x in ctx.args)
+    return pose + extra
+
+
+@cli.command(context_settings={"ignore_unknown_options": True, "allow_extra_args": True})
+@click.argument("robot")
+@click.option("--pose", type=float, required=True, help="X Y Z [ROLL PITCH YAW]: the numbers follow --pose")
+@click.pass_context
+def ik(ctx: click.Context, robot: str, pose: float) -> None:
+    """Inverse kinematics of ROBOT at --pose X Y Z [ROLL PITCH YAW]."""
+    from cdpr.kinematics import inverse_kinematics
+    from cdpr.robot import load_robot
+
+    r = load_robot(robot)
+    position, R = _pose(_numbers("--pose", (pose, *ctx.args)))
+    k = inverse_kinematics(r, position, R)
+    _emit({"lengths": k.lengths.tolist(), "directions": k.directions.tolist(), "wrench_matrix": k.wrench_matrix.tolist()})
+
+
+def _numbers(flag: str, raw: tuple[Any, ...]) -> tuple[float, ...]:
+    out = []
+    for x in raw:
+        try:
+            out.append(float(x))
+        except ValueError:
+            raise InputError(f"{flag}: {x!r} is not a number") from None
+    return tuple(out)
+
+
+def _split_numbers(args: list[str], flags: tuple[str, ...]) -> dict[str, list[str]]:
+    """Numbers after --pose / --wrench (which take several values) are collected here."""
+    groups: dict[str, list[str]] = {}
+    current: str | None = None
+    for a in args:
+        if a in flags:
+            current = a
+            groups[a] = []
+        elif current is not None:
+            groups[current].append(a)
+        else:
+            raise InputError(f"unexpected argument {a!r}")
+    return groups
+
+
+@cli.command(context_settings={"ignore_unknown_options": True, "allow_extra_args": True})
+@click.argument("robot")
+@click.option("--static", "static", is_flag=True, help="tensions that hold the platform (plus payload) at rest")
+@click.option("--payload", type=float, default=0.0, show_default=True, help="kg rigidly attached at the centre of mass")
+@click.option("--method", default="qp", show_default=True, help="qp | closed-form | improved-closed-form | continuity")
+@click.option("--tmin", type=float, default=None, help="N (default: the robot's)")
+@click.option("--tmax", type=float, default=None, help="N (default: the robot's)")
+@click.pass_context
+def tda(ctx: click.Context, robot: str, static: bool, payload: float, method: str, tmin: float | None, tmax: float | None) -> None:
+    """Tension distribution of ROBOT at --pose X Y Z [R P Y], for --static or --wrench FX FY FZ MX MY MZ."""
+    from cdpr.dynamics import gravity_wrench
+    from cdpr.kinematics import inverse_kinematics
+    from cdpr.robot import load_robot
+    from cdpr.tda import METHODS, make_tda
+
+    groups = _split_numbers(list(ctx.args), ("--pose", "--wrench"))
+    if "--pose" not in groups:
+        raise InputError("--pose X Y Z [ROLL PITCH YAW] is required")
+    if static == ("--wrench" in groups):
+        raise InputError("give exactly one of --static or --wrench FX FY FZ MX MY MZ")
+    if method not in METHODS:
+        raise InputError(f"--method: unknown method {method!r} (known: {', '.join(sorted(METHODS))})")
+    r = load_robot(robot).with_payload(payload)
+    lo = r.tmin if tmin is None else tmin
+    hi = r.tmax if tmax is None else tmax
+    if not (np.isfinite(lo) and np.isfinite(hi)) or lo < 0 or lo > hi:
+        raise InputError(f"--tmin/--tmax: need 0 <= tmin <= tmax, got {lo} and {hi}")
+    position, R = _pose(_numbers("--pose", tuple(groups["--pose"])))
+    rows = list(r.controlled_rows)
+    W = inverse_kinematics(r, position, R).wrench_matrix[rows]
+    if static:
+        w = -gravity_wrench(r)
+        w = w if r.mode == "point_mass" else w[rows]
+    else:
+        wrench = np.array(_numbers("--wrench", tuple(groups["--wrench"])))
+        if wrench.shape != (6,) or not np.all(np.isfinite(wrench)):
+            raise InputError("--wrench: expected 6 finite numbers FX FY FZ MX MY MZ")
+        w = wrench[rows]
+    result = make_tda(method).solve(W, w, lo, hi)
+    _emit(
+        {
+            "tensions": result.tensions.tolist(),
+            "feasible": result.feasible,
+            "residual": result.residual,
+            "method": result.method,
+            "status": result.status,
+        }
+    )
+
+
+# ------------------------------------------------------------------------------------------------
+# Running sessions
+
+
+def _scenario_options(f: Callable[..., Any]) -> Callable[..., Any]:
+    f = click.option("--duration", type=float, default=None, help="override the scenario's duration (s)")(f)
+    f = click.option("--session", "session_id", default="default", show_default=True, help="session id")(f)
+    return click.argument("scenario")(f)
+
+
+def _zenoh_options(f: Callable[..., Any]) -> Callable[..., Any]:
+    f = click.option("--zenoh-config", type=click.Path(), default=None, help="Zenoh JSON5 config file (or $ZENOH_CONFIG)")(f)
+    f = click.option("--listen", multiple=True, help="Zenoh endpoint to listen on, e.g. tcp/0.0.0.0:7447")(f)
+    f = click.option("--connect", multiple=True, help="Zenoh endpoint to connect to, e.g. tcp/192.168.1.10:7447")(f)
+    return click.option("--zenoh-mode", type=click.Choice(["peer", "client"]), default="peer", show_default=True)(f)
+
+
+def _load(scenario: str, duration: float | None) -> Any:
+    from cdpr.scenario import load_scenario
+
+    if duration is not None and not (np.isfinite(duration) and duration > 0):
+        raise InputError(f"--duration: must be a positive number of seconds, got {duration}")
+    return load_scenario(scenario, {"duration": duration})
+
+
+def _serve(name: str, scenario: str, session_id: str, duration: float | None, zenoh_mode: str,
+           connect: tuple[str, ...], listen: tuple[str, ...], zenoh_config: str | None, **extra: Any) -> None:
+    from cdpr.protocol import Keys
+    from cdpr.service import serve
+    from cdpr.transport import zenoh_config as make_config
+
+    sc = _load(scenario, duration)
+    try:
+        keys = Keys(session_id)
+    except ValueError as exc:
+        raise InputError(f"--session: {exc}") from None
+    conf = make_config(zenoh_mode, connect, listen, zenoh_config)
+    if name == "sim":
+        from cdpr_sim.node import SimNode
+
+        node: Any = SimNode(sc, keys)
+    elif name == "trajectory":
+        from cdpr_trajectory.node import TrajectoryNode
+
+        node = TrajectoryNode(sc, keys)
+    elif name == "controller":
+        from cdpr_controller.node import ControllerNode
+
+        node = ControllerNode(sc, keys)
+    elif name == "clock":
+        from cdpr_clock.node import ClockNode
+
+        node = ClockNode(sc, keys, expected=extra["expect"], realtime=extra["mode"] == "realtime",
+                         lookahead=extra["lookahead"], resend_after=extra["resend_after"])
+    elif name == "recorder":
+        from cdpr_recorder.node import RecorderNode
+
+        node = RecorderNode(sc, keys, rrd=extra["rrd"], spawn=extra["spawn"], viewer=extra["connect_viewer"])
+    else:  # pragma: no cover - the commands below are the only callers
+        raise AssertionError(name)
+    sys.exit(serve(node, conf))
+
+
+@cli.command()
+@_scenario_options
+@_zenoh_options
+def sim(**kw: Any) -> None:
+    """Run the sim service (DART physics) for SCENARIO."""
+    _serve("sim", **kw)
+
+
+@cli.command()
+@_scenario_options
+@_zenoh_options
+def trajectory(**kw: Any) -> None:
+    """Run the trajectory service for SCENARIO."""
+    _serve("trajectory", **kw)
+
+
+@cli.command()
+@_scenario_options
+@_zenoh_options
+def controller(**kw: Any) -> None:
+    """Run the controller service (feedback linearisation + tension distribution) for SCENARIO."""
+    _serve("controller", **kw)
+
+
+@cli.command()
+@_scenario_options
+@_zenoh_options
+@click.option("--mode", type=click.Choice(["fast", "realtime"]), default="fast", show_default=True)
+@click.option("--expect", default="sim,trajectory,controller", show_default=True,
+              help="comma-separated participants to wait for")
+@click.option("--lookahead", type=click.IntRange(0, 8), default=1, show_default=True,
+              help="ticks issued ahead of the sim (0: strict one-step handshake)")
+@click.option("--resend-after", type=click.FloatRange(min=0.01), default=1.0, show_default=True,
+              help="seconds without progress before the pending ticks are repeated")
+def clock(expect: str, **kw: Any) -> None:
+    """Run the lock-step clock for SCENARIO."""
+    from cdpr.protocol import SERVICES
+
+    names = tuple(s.strip() for s in expect.split(",") if s.strip())
+    unknown = [n for n in names if n not in SERVICES or n == "clock"]
+    if unknown:
+        raise InputError(f"--expect: unknown participant(s) {', '.join(unknown)}")
+    _serve("clock", expect=names, **kw)
+
+
+@cli.command()
+@_scenario_options
+@_zenoh_options
+@click.option("--rrd", type=click.Path(), default=None, help="write the recording to this .rrd file")
+@click.option("--spawn", is_flag=True, help="also stream to a new Rerun viewer")
+@click.option("--connect-viewer", default=None, help="also stream to the Rerun viewer at this gRPC URL")
+def recorder(**kw: Any) -> None:
+    """Run the recorder: subscribes to the whole session and logs it to Rerun."""
+    _serve("recorder", **kw)
+
+
+def _run_options(f: Callable[..., Any]) -> Callable[..., Any]:
+    f = click.option("--summary", type=click.Path(), default=None, help="also write the JSON summary here")(f)
+    f = click.option("--connect-viewer", default=None, help="stream the recording to this Rerun viewer URL")(f)
+    f = click.option("--spawn", is_flag=True, help="stream the recording to a new Rerun viewer")(f)
+    f = click.option("--rrd", type=click.Path(), default=None, help="write the recording to this .rrd file")(f)
+    f = click.option("--mode", type=click.Choice(["fast", "realtime"]), default="fast", show_default=True)(f)
+    return _scenario_options(f)
+
+
+@cli.command()
+@_run_options
+@click.option("--quiet", is_flag=True, help="no progress line")
+def run(**kw: Any) -> None:
+    """Run SCENARIO end to end: every service as a child process on a private loopback network.
+
+    Prints a JSON summary as the last line of stdout.
+    """
+    from cdpr.launch import run_session
+
+    sys.exit(run_session(_load(kw.pop("scenario"), kw.pop("duration")), **kw))
+
+
+@cli.command()
+@_run_options
+@click.option("--without", "without", multiple=True, type=click.Choice(["controller", "trajectory", "sim"]),
+              help="a participant that will join from elsewhere")
+@click.option("--listen", "listen", multiple=True, help="endpoint where remote participants connect (default tcp/127.0.0.1:7447)")
+@click.option("--join-timeout", type=float, default=None, help="give up if a participant has not joined after this many seconds")
+@click.option("--quiet", is_flag=True, help="no progress line")
+def up(**kw: Any) -> None:
+    """Run the services of SCENARIO except --without ones, and wait for those to join over Zenoh."""
+    from cdpr.launch import run_session
+
+    sys.exit(run_session(_load(kw.pop("scenario"), kw.pop("duration")), **kw))
+
+
+def main(argv: list[str] | None = None) -> None:
+    try:
+        cli.main(args=argv, prog_name="cdpr", standalone_mode=True)
+    except InputError as exc:  # raised outside a command's invoke (e.g. in a callback)
+        _fail(str(exc))
+
+
+def service_main(name: str) -> None:
+    """Entry of ``python -m cdpr_<name>``: the same as ``cdpr <name>``."""
+    main([name, *sys.argv[1:]])

@@ -1,0 +1,202 @@
+"""`cdpr run` and `cdpr up`: start a session's services as child processes and watch it to the end.
+
+The launcher hosts the session's Zenoh router in its own process (listening on loopback by default)
+and every service connects to it as a client, so no external router is needed and the declaration
+order is well defined: a service's subscribers reach the router before its liveliness token, so when
+the clock sees the token the service can already be reached. The launcher's own monitor subscribes
+(on the router itself) before any service starts, computes the run summary, and prints it as the last
+line of stdout.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import signal
+import socket
+import subprocess
+import sys
+import time
+from pathlib import Path
+from typing import Any
+
+from cdpr.errors import InputError
+from cdpr.metrics import RunMetrics
+from cdpr.protocol import Command, Keys, ProtocolError, Setpoint, State, Status
+from cdpr.scenario import Scenario
+from cdpr.service import PARENT_ENV
+from cdpr.transport import Inbox, StopFlag, log, open_session, zenoh_config
+
+STOP_GRACE = 5.0  # seconds a child gets to stop by itself before it is terminated, then killed
+
+
+def free_port() -> int:
+    with socket.socket(socket.AF_INET, socket.SOCK_STREAM) as s:
+        s.bind(("127.0.0.1", 0))
+        return int(s.getsockname()[1])
+
+
+def local_endpoint(listen: str) -> str:
+    """The endpoint a local child connects to, for a listen endpoint (0.0.0.0 → 127.0.0.1)."""
+    proto, _, addr = listen.partition("/")
+    host, _, port = addr.rpartition(":")
+    if host in ("0.0.0.0", "[::]", ""):
+        host = "127.0.0.1"
+    return f"{proto}/{host}:{port}"
+
+
+class Children:
+    """The service processes of one session; stops them all, whatever happens."""
+
+    def __init__(self) -> None:
+        self.procs: dict[str, subprocess.Popen[bytes]] = {}
+
+    def start(self, name: str, args: list[str]) -> None:
+        env = dict(os.environ, **{PARENT_ENV: str(os.getpid())})
+        self.procs[name] = subprocess.Popen(
+            [sys.executable, "-m", "cdpr", name, *args], stdout=sys.stderr.fileno(), env=env
+        )
+
+    def failed(self) -> list[tuple[str, int]]:
+        return [(n, p.returncode) for n, p in self.procs.items() if p.poll() is not None and p.returncode != 0]
+
+    def stop(self, grace: float = STOP_GRACE) -> dict[str, int]:
+        deadline = time.monotonic() + grace
+        for sig in (None, signal.SIGTERM, signal.SIGKILL):
+            for p in self.procs.values():
+                if p.poll() is None and sig is not None:
+                    p.send_signal(sig)
+            while time.monotonic() < deadline and any(p.poll() is None for p in self.procs.values()):
+                time.sleep(0.02)
+            if all(p.poll() is not None for p in self.procs.values()):
+                break
+            deadline = time.monotonic() + (grace if sig is None else 2.0)
+        for p in self.procs.values():
+            p.wait()
+        return {n: p.returncode for n, p in self.procs.items()}
+
+
+def run_session(
+    scenario: Scenario,
+    session_id: str = "default",
+    mode: str = "fast",
+    rrd: str | None = None,
+    spawn: bool = False,
+    connect_viewer: str | None = None,
+    summary: str | None = None,
+    quiet: bool = False,
+    without: tuple[str, ...] = (),
+    listen: tuple[str, ...] = (),
+    join_timeout: float | None = None,
+) -> int:
+    try:
+        keys = Keys(session_id)
+    except ValueError as exc:
+        raise InputError(f"--session: {exc}") from None
+    remote = bool(without)
+    listen_eps = list(listen) or ([f"tcp/127.0.0.1:{7447 if remote else free_port()}"])
+    local = local_endpoint(listen_eps[0])
+    recording = bool(rrd or spawn or connect_viewer)
+    expected = ["sim", "trajectory", "controller"] + (["recorder"] if recording else [])
+    stop = StopFlag().install()
+    conf = zenoh_config("router", listen=listen_eps)
+    metrics = RunMetrics()
+    m = scenario.robot.m
+    final: Status | None = None
+    children = Children()
+    started = time.monotonic()
+    exit_ok = False
+    with open_session(conf, "cdpr run") as session:
+        inbox = Inbox()
+        subs = [
+            inbox.subscribe(session, keys.state, "state"),
+            inbox.subscribe(session, keys.setpoint, "setpoint"),
+            inbox.subscribe(session, keys.command, "command"),
+            inbox.subscribe(session, keys.status, "status"),
+        ]
+        common = [scenario.source, "--session", session_id, "--duration", repr(scenario.duration),
+                  "--zenoh-mode", "client", "--connect", local]
+        try:
+            if remote:
+                log("cdpr", f"waiting for {', '.join(without)} to join session {session_id!r} at {', '.join(listen_eps)}")
+            children.start("clock", [*common, "--mode", mode, "--expect", ",".join(expected)])
+            for name in ("sim", "trajectory", "controller"):
+                if name not in without:
+                    children.start(name, common)
+            if recording:
+                rec = [*common]
+                if rrd:
+                    Path(rrd).parent.mkdir(parents=True, exist_ok=True)
+                    rec += ["--rrd", rrd]
+                if spawn:
+                    rec += ["--spawn"]
+                if connect_viewer:
+                    rec += ["--connect-viewer", connect_viewer]
+                children.start("recorder", rec)
+            last_progress = 0.0
+            while not stop:
+                for ev in inbox.drain(0.2):
+                    try:
+                        if ev.kind == "state":
+                            metrics.add_state(State.decode(ev.payload, m), ev.payload)
+                        elif ev.kind == "setpoint":
+                            metrics.add_setpoint(Setpoint.decode(ev.payload))
+                        elif ev.kind == "command":
+                            metrics.add_command(Command.decode(ev.payload, m))
+                        else:
+                            final = Status.decode(ev.payload)
+                    except ProtocolError:
+                        pass  # the services log and count bad messages; the summary ignores them
+                if final is not None and final.state in ("finished", "aborted"):
+                    exit_ok = final.state == "finished"
+                    break
+                if failed := children.failed():
+                    log("cdpr", "stopping: " + ", ".join(f"{n} exited with code {c}" for n, c in failed))
+                    break
+                now = time.monotonic()
+                joined = final is not None and final.state != "waiting"
+                if join_timeout is not None and not joined and now - started > join_timeout:
+                    log("cdpr", f"stopping: participants did not join within {join_timeout:g} s")
+                    break
+                if not quiet and now - last_progress >= 1.0:
+                    last_progress = now
+                    k = metrics.last_step
+                    n = scenario.total_steps
+                    rate = final.stats.get("rate", 0.0) if final is not None else 0.0
+                    log("cdpr", f"step {max(k, 0)}/{n} ({100.0 * max(k, 0) / n:.0f} %), {rate:.0f} steps/s")
+        finally:
+            codes = children.stop()
+            for s in subs:
+                s.undeclare()
+    if stop.signal is not None:
+        log("cdpr", "interrupted; every service stopped")
+    stats = final.stats if final is not None else {}
+    children_ok = all(c == 0 for c in codes.values())
+    result: dict[str, Any] = {
+        "scenario": scenario.name,
+        "session": session_id,
+        "mode": mode,
+        "steps": metrics.last_step if metrics.last_step >= 0 else 0,
+        "total_steps": scenario.total_steps,
+        "sim_time": max(metrics.last_step, 0) * scenario.dt,
+        "wall_time": stats.get("wall_time"),
+        "rate": stats.get("rate"),
+        "rtf": stats.get("rtf"),
+        **metrics.summary(),
+        "late_ticks": stats.get("late_ticks"),
+        "resends": stats.get("resends"),
+        "rrd": rrd,
+        "exit_codes": codes,
+        "exit_ok": bool(exit_ok and children_ok and stop.signal is None),
+    }
+    for key in ("lateness_p50_ms", "lateness_p99_ms", "lateness_p999_ms", "lateness_max_ms", "on_time_fraction"):
+        if key in stats:
+            result[key] = stats[key]
+    line = json.dumps(result)
+    if summary:
+        Path(summary).parent.mkdir(parents=True, exist_ok=True)
+        Path(summary).write_text(json.dumps(result, indent=2) + "\n", encoding="utf-8")
+    print(line, flush=True)
+    if stop.signal is not None:
+        return 128 + stop.signal
+    return 0 if result["exit_ok"] else 1

@@ -1,0 +1,355 @@
+"""The wire protocol: every key expression and every message of a session, in one place.
+
+Documented for people in ``docs/protocol.md``; keep the two in step (a test checks the key table).
+
+Payloads are msgpack maps with string keys. Every message carries the protocol version ``v``, and
+every step-stamped message the step number ``step`` (int ≥ 0) and the sim time ``t`` (s, = step·dt).
+Decoding validates type, length and finiteness and raises :class:`ProtocolError` with a one-line message
+that names the field; services log it, count it, and drop (or clamp, for tensions) as documented.
+"""
+
+from __future__ import annotations
+
+import math
+import re
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+from typing import Any, ClassVar
+
+import msgpack
+
+PROTOCOL_VERSION = 1
+SESSION_RE = re.compile(r"^[A-Za-z0-9_-]{1,64}$")
+
+# Service names that can hold a liveliness token `cdpr/{session}/alive/{name}`.
+SERVICES = ("clock", "sim", "trajectory", "controller", "recorder")
+
+
+class ProtocolError(ValueError):
+    """A payload that does not follow the protocol; the message names the offending field."""
+
+
+def check_session(session: str) -> str:
+    if not SESSION_RE.match(session):
+        raise ValueError(f"session id {session!r} must be 1-64 characters of A-Z a-z 0-9 _ -")
+    return session
+
+
+@dataclass(frozen=True)
+class Keys:
+    """Key expressions of one session, ``cdpr/{session}/...``."""
+
+    session: str = "default"
+    prefix: str = field(init=False)
+
+    def __post_init__(self) -> None:
+        check_session(self.session)
+        object.__setattr__(self, "prefix", f"cdpr/{self.session}")
+
+    @property
+    def tick(self) -> str:
+        return f"{self.prefix}/clock/tick"
+
+    @property
+    def status(self) -> str:
+        return f"{self.prefix}/clock/status"
+
+    @property
+    def state(self) -> str:
+        return f"{self.prefix}/sim/state"
+
+    @property
+    def setpoint(self) -> str:
+        return f"{self.prefix}/trajectory/setpoint"
+
+    @property
+    def command(self) -> str:
+        return f"{self.prefix}/controller/command"
+
+    @property
+    def info(self) -> str:
+        return f"{self.prefix}/session/info"
+
+    def alive(self, service: str) -> str:
+        return f"{self.prefix}/alive/{service}"
+
+    @property
+    def alive_all(self) -> str:
+        return f"{self.prefix}/alive/*"
+
+    def table(self) -> dict[str, str]:
+        """Name → key expression, for documentation and tests."""
+        return {
+            "tick": self.tick,
+            "status": self.status,
+            "state": self.state,
+            "setpoint": self.setpoint,
+            "command": self.command,
+            "info": self.info,
+            "alive": self.alive("{service}"),
+        }
+
+
+# Who publishes and who subscribes to what (dora-style wiring table; checked by a test against
+# the services' code and docs/protocol.md).
+WIRING: dict[str, dict[str, tuple[str, ...]]] = {
+    "tick": {"publishers": ("clock",), "subscribers": ("sim", "trajectory", "recorder")},
+    "status": {"publishers": ("clock",), "subscribers": ("sim", "trajectory", "controller", "recorder")},
+    "state": {"publishers": ("sim",), "subscribers": ("clock", "controller", "recorder")},
+    "setpoint": {"publishers": ("trajectory",), "subscribers": ("controller", "recorder")},
+    "command": {"publishers": ("controller",), "subscribers": ("sim", "recorder")},
+    "info": {"publishers": ("clock",), "subscribers": ()},
+}
+
+
+# --------------------------------------------------------------------------------------------------
+# Field checks. Each returns the cleaned value or raises ProtocolError naming the field.
+
+
+def _field(msg: dict[Any, Any], name: str) -> Any:
+    if name not in msg:
+        raise ProtocolError(f"{name}: missing")
+    return msg[name]
+
+
+def _int(msg: dict[Any, Any], name: str, minimum: int = 0) -> int:
+    value = _field(msg, name)
+    if isinstance(value, bool) or not isinstance(value, int):
+        raise ProtocolError(f"{name}: expected an integer, got {type(value).__name__}")
+    if value < minimum:
+        raise ProtocolError(f"{name}: must be >= {minimum}, got {value}")
+    return value
+
+
+def _float(msg: dict[Any, Any], name: str) -> float:
+    value = _field(msg, name)
+    if isinstance(value, bool) or not isinstance(value, (int, float)):
+        raise ProtocolError(f"{name}: expected a number, got {type(value).__name__}")
+    value = float(value)
+    if not math.isfinite(value):
+        raise ProtocolError(f"{name}: must be finite, got {value}")
+    return value
+
+
+def _vector(msg: dict[Any, Any], name: str, length: int | None) -> tuple[float, ...]:
+    value = _field(msg, name)
+    if not isinstance(value, (list, tuple)):
+        raise ProtocolError(f"{name}: expected an array of numbers, got {type(value).__name__}")
+    if length is not None and len(value) != length:
+        raise ProtocolError(f"{name}: expected {length} numbers, got {len(value)}")
+    out = []
+    for i, x in enumerate(value):
+        if isinstance(x, bool) or not isinstance(x, (int, float)):
+            raise ProtocolError(f"{name}[{i}]: expected a number, got {type(x).__name__}")
+        x = float(x)
+        if not math.isfinite(x):
+            raise ProtocolError(f"{name}[{i}]: must be finite, got {x}")
+        out.append(x)
+    return tuple(out)
+
+
+def unpack(payload: bytes | bytearray | memoryview) -> dict[Any, Any]:
+    """msgpack bytes → map, checking the protocol version."""
+    try:
+        msg = msgpack.unpackb(bytes(payload), raw=False, strict_map_key=False)
+    except Exception as exc:  # msgpack raises several unrelated types for garbage
+        raise ProtocolError(f"payload: not valid msgpack ({type(exc).__name__})") from None
+    if not isinstance(msg, dict):
+        raise ProtocolError(f"payload: expected a msgpack map, got {type(msg).__name__}")
+    v = _field(msg, "v")
+    if v != PROTOCOL_VERSION:
+        raise ProtocolError(f"v: unsupported protocol version {v!r} (this is version {PROTOCOL_VERSION})")
+    return msg
+
+
+def pack(msg: dict[str, Any]) -> bytes:
+    return msgpack.packb({"v": PROTOCOL_VERSION, **msg}, use_bin_type=True)
+
+
+def _floats(values: Sequence[float]) -> list[float]:
+    return [float(x) for x in values]
+
+
+# --------------------------------------------------------------------------------------------------
+# Messages
+
+
+@dataclass(frozen=True, slots=True)
+class Tick:
+    """``clock/tick``: step ``step`` (time ``t``) may be computed. Repeated when a step must be redone."""
+
+    KEY: ClassVar[str] = "tick"
+    step: int
+    t: float
+
+    def encode(self) -> bytes:
+        return pack({"step": self.step, "t": self.t})
+
+    @classmethod
+    def decode(cls, payload: bytes) -> Tick:
+        msg = unpack(payload)
+        return cls(_int(msg, "step"), _float(msg, "t"))
+
+
+@dataclass(frozen=True, slots=True)
+class State:
+    """``sim/state``: the platform at step ``step`` and what acted on it during the previous step."""
+
+    KEY: ClassVar[str] = "state"
+    step: int
+    t: float
+    pose: tuple[float, ...]  # x, y, z, qx, qy, qz, qw (centre of mass, world frame)
+    twist: tuple[float, ...]  # vx, vy, vz, wx, wy, wz (world frame)
+    cable_lengths: tuple[float, ...]
+    tensions: tuple[float, ...]  # as applied over [t - dt, t] (zeros at step 0)
+    clamped: int = 0  # commands clamped by the sim so far (optional on the wire, default 0)
+
+    def encode(self) -> bytes:
+        return pack(
+            {
+                "step": self.step,
+                "t": self.t,
+                "pose": _floats(self.pose),
+                "twist": _floats(self.twist),
+                "cable_lengths": _floats(self.cable_lengths),
+                "tensions": _floats(self.tensions),
+                "clamped": self.clamped,
+            }
+        )
+
+    @classmethod
+    def decode(cls, payload: bytes, cables: int | None = None) -> State:
+        msg = unpack(payload)
+        lengths = _vector(msg, "cable_lengths", cables)
+        return cls(
+            _int(msg, "step"),
+            _float(msg, "t"),
+            _vector(msg, "pose", 7),
+            _vector(msg, "twist", 6),
+            lengths,
+            _vector(msg, "tensions", len(lengths)),
+            _int(msg, "clamped") if "clamped" in msg else 0,
+        )
+
+
+@dataclass(frozen=True, slots=True)
+class Setpoint:
+    """``trajectory/setpoint``: the desired pose, twist and acceleration at step ``step``."""
+
+    KEY: ClassVar[str] = "setpoint"
+    step: int
+    t: float
+    pose: tuple[float, ...]
+    twist: tuple[float, ...]
+    accel: tuple[float, ...]
+
+    def encode(self) -> bytes:
+        return pack(
+            {
+                "step": self.step,
+                "t": self.t,
+                "pose": _floats(self.pose),
+                "twist": _floats(self.twist),
+                "accel": _floats(self.accel),
+            }
+        )
+
+    @classmethod
+    def decode(cls, payload: bytes) -> Setpoint:
+        msg = unpack(payload)
+        return cls(
+            _int(msg, "step"),
+            _float(msg, "t"),
+            _vector(msg, "pose", 7),
+            _vector(msg, "twist", 6),
+            _vector(msg, "accel", 6),
+        )
+
+
+@dataclass(frozen=True, slots=True)
+class Command:
+    """``controller/command``: the cable tensions (N) to apply over [t_k, t_k + dt].
+
+    ``tensions`` must be finite; the sim clamps each to [0, tmax] (a cable only pulls) and counts the
+    clamps. Optional ``feasible``/``status`` report the controller's tension distribution outcome.
+    """
+
+    KEY: ClassVar[str] = "command"
+    step: int
+    t: float
+    tensions: tuple[float, ...]
+    feasible: bool = True
+    status: str = "ok"
+
+    def encode(self) -> bytes:
+        return pack(
+            {
+                "step": self.step,
+                "t": self.t,
+                "tensions": _floats(self.tensions),
+                "feasible": bool(self.feasible),
+                "status": self.status,
+            }
+        )
+
+    @classmethod
+    def decode(cls, payload: bytes, cables: int | None = None) -> Command:
+        msg = unpack(payload)
+        feasible = msg.get("feasible", True)
+        status = msg.get("status", "ok")
+        if not isinstance(feasible, bool):
+            raise ProtocolError(f"feasible: expected true/false, got {type(feasible).__name__}")
+        if not isinstance(status, str):
+            raise ProtocolError(f"status: expected a string, got {type(status).__name__}")
+        return cls(_int(msg, "step"), _float(msg, "t"), _vector(msg, "tensions", cables), feasible, status)
+
+
+CLOCK_STATES = ("waiting", "running", "paused", "finished", "aborted")
+
+
+@dataclass(frozen=True, slots=True)
+class Status:
+    """``clock/status``: the session's state, published on every change and about once a second.
+
+    ``state`` is one of waiting | running | paused | finished | aborted; ``missing`` lists the expected
+    participants without a liveliness token; ``stats`` holds the clock's counters (documented).
+    """
+
+    KEY: ClassVar[str] = "status"
+    state: str
+    step: int
+    t: float
+    total_steps: int
+    missing: tuple[str, ...] = ()
+    reason: str = ""
+    stats: dict[str, Any] = field(default_factory=dict)
+
+    def encode(self) -> bytes:
+        return pack(
+            {
+                "state": self.state,
+                "step": self.step,
+                "t": self.t,
+                "total_steps": self.total_steps,
+                "missing": list(self.missing),
+                "reason": self.reason,
+                "stats": self.stats,
+            }
+        )
+
+    @classmethod
+    def decode(cls, payload: bytes) -> Status:
+        msg = unpack(payload)
+        state = _field(msg, "state")
+        if state not in CLOCK_STATES:
+            raise ProtocolError(f"state: expected one of {', '.join(CLOCK_STATES)}, got {state!r}")
+        missing = msg.get("missing", [])
+        if not isinstance(missing, list) or not all(isinstance(x, str) for x in missing):
+            raise ProtocolError("missing: expected a list of service names")
+        stats = msg.get("stats", {})
+        if not isinstance(stats, dict):
+            raise ProtocolError("stats: expected a map")
+        reason = msg.get("reason", "")
+        return cls(
+            state, _int(msg, "step"), _float(msg, "t"), _int(msg, "total_steps"), tuple(missing), str(reason), stats
+        )

@@ -1,0 +1,87 @@
+"""Rotations: quaternions ``[qx, qy, qz, qw]`` (scalar last, as on the wire), matrices, rotation vectors.
+
+Pure numpy, no I/O. Roll-pitch-yaw is the ROS/URDF convention: R = Rz(yaw) · Ry(pitch) · Rx(roll).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
+Array = NDArray[np.float64]
+
+
+def skew(v: ArrayLike) -> Array:
+    """The matrix [v]× such that [v]× u = v × u."""
+    x, y, z = np.asarray(v, dtype=float)
+    return np.array([[0.0, -z, y], [z, 0.0, -x], [-y, x, 0.0]])
+
+
+def rpy_to_matrix(roll: float, pitch: float, yaw: float) -> Array:
+    cr, sr = np.cos(roll), np.sin(roll)
+    cp, sp = np.cos(pitch), np.sin(pitch)
+    cy, sy = np.cos(yaw), np.sin(yaw)
+    return np.array(
+        [
+            [cy * cp, cy * sp * sr - sy * cr, cy * sp * cr + sy * sr],
+            [sy * cp, sy * sp * sr + cy * cr, sy * sp * cr - cy * sr],
+            [-sp, cp * sr, cp * cr],
+        ]
+    )
+
+
+def matrix_to_quat(R: ArrayLike) -> Array:
+    """Rotation matrix → unit quaternion [qx, qy, qz, qw] with qw ≥ 0 (Shepperd's method)."""
+    m = np.asarray(R, dtype=float)
+    tr = m[0, 0] + m[1, 1] + m[2, 2]
+    if tr > 0.0:
+        s = 2.0 * np.sqrt(tr + 1.0)
+        q = np.array([(m[2, 1] - m[1, 2]) / s, (m[0, 2] - m[2, 0]) / s, (m[1, 0] - m[0, 1]) / s, 0.25 * s])
+    elif m[0, 0] > m[1, 1] and m[0, 0] > m[2, 2]:
+        s = 2.0 * np.sqrt(1.0 + m[0, 0] - m[1, 1] - m[2, 2])
+        q = np.array([0.25 * s, (m[0, 1] + m[1, 0]) / s, (m[0, 2] + m[2, 0]) / s, (m[2, 1] - m[1, 2]) / s])
+    elif m[1, 1] > m[2, 2]:
+        s = 2.0 * np.sqrt(1.0 + m[1, 1] - m[0, 0] - m[2, 2])
+        q = np.array([(m[0, 1] + m[1, 0]) / s, 0.25 * s, (m[1, 2] + m[2, 1]) / s, (m[0, 2] - m[2, 0]) / s])
+    else:
+        s = 2.0 * np.sqrt(1.0 + m[2, 2] - m[0, 0] - m[1, 1])
+        q = np.array([(m[0, 2] + m[2, 0]) / s, (m[1, 2] + m[2, 1]) / s, 0.25 * s, (m[1, 0] - m[0, 1]) / s])
+    q /= np.linalg.norm(q)
+    return q if q[3] >= 0.0 else -q
+
+
+def quat_to_matrix(q: ArrayLike) -> Array:
+    """Unit quaternion [qx, qy, qz, qw] → rotation matrix (the quaternion is normalised first)."""
+    x, y, z, w = np.asarray(q, dtype=float) / np.linalg.norm(q)
+    return np.array(
+        [
+            [1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w)],
+            [2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w)],
+            [2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)],
+        ]
+    )
+
+
+def rotvec_to_matrix(v: ArrayLike) -> Array:
+    """Exponential map: rotation vector (axis × angle) → rotation matrix (Rodrigues)."""
+    v = np.asarray(v, dtype=float)
+    theta = float(np.linalg.norm(v))
+    K = skew(v)
+    if theta < 1e-8:
+        return np.eye(3) + K + 0.5 * K @ K
+    return np.eye(3) + np.sin(theta) / theta * K + (1.0 - np.cos(theta)) / theta**2 * K @ K
+
+
+def matrix_to_rotvec(R: ArrayLike) -> Array:
+    """Logarithm map: rotation matrix → rotation vector, angle in [0, π]."""
+    q = matrix_to_quat(R)  # qw >= 0 so the angle is in [0, π]
+    s = float(np.linalg.norm(q[:3]))
+    if s < 1e-12:
+        return 2.0 * q[:3]
+    angle = 2.0 * np.arctan2(s, q[3])
+    return q[:3] / s * angle
+
+
+def orientation_error(R_desired: ArrayLike, R: ArrayLike) -> Array:
+    """World-frame rotation vector e with exp([e]×) · R = R_desired: the error on SO(3)."""
+    return matrix_to_rotvec(np.asarray(R_desired) @ np.asarray(R).T)

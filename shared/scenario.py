@@ -1,0 +1,194 @@
+"""Scenarios: one YAML file says which robot, which trajectory, which controller, for how long.
+
+Like robot files, scenarios are data, validated at load into a frozen :class:`Scenario`; a bad file
+raises :class:`cdpr.errors.InputError` naming the file and the field. Shipped scenarios live in
+``cdpr/scenarios/`` (the repository's ``shared/scenarios/``).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any, Literal
+
+import numpy as np
+from pydantic import BaseModel, ConfigDict, Field, FiniteFloat, PositiveFloat, field_validator, model_validator
+
+from cdpr.control import Gains, Variant
+from cdpr.errors import InputError
+from cdpr.loading import parse_model, read_yaml, resolve, shipped_names
+from cdpr.robot import Robot, load_robot
+from cdpr.rotation import rpy_to_matrix
+from cdpr.trajectory import Trajectory, TrajectorySpec
+
+
+class _Strict(BaseModel):
+    model_config = ConfigDict(extra="forbid", frozen=True)
+
+
+class PlatformOverride(_Strict):
+    mass: PositiveFloat | None = Field(None, description="whole platform mass; inertia becomes the solid shape's")
+    payload: FiniteFloat = Field(0.0, ge=0.0, description="point mass rigidly attached at the centre of mass, kg")
+
+
+class LimitsOverride(_Strict):
+    tmin: FiniteFloat | None = Field(None, ge=0.0)
+    tmax: PositiveFloat | None = None
+
+
+class TdaSpec(_Strict):
+    method: str = "qp"
+    options: dict[str, Any] = Field(default_factory=dict)
+
+    @field_validator("method")
+    @classmethod
+    def _known(cls, v: str) -> str:
+        from cdpr.tda import METHODS
+
+        if v not in METHODS:
+            raise ValueError(f"unknown TDA method {v!r} (known: {', '.join(sorted(METHODS))})")
+        return v
+
+
+Gain = FiniteFloat | list[FiniteFloat]
+
+
+class ControllerSpec(_Strict):
+    variant: Literal["6dof", "3dof"] = "6dof"
+    kp: Gain = 1500.0
+    kd: Gain = 1500.0
+    tda: TdaSpec = Field(default_factory=TdaSpec)
+
+    @field_validator("kp", "kd")
+    @classmethod
+    def _six(cls, v: float | list[float]) -> float | list[float]:
+        if isinstance(v, list) and len(v) != 6:
+            raise ValueError(f"a gain is one number or 6 numbers [x, y, z, rx, ry, rz], got {len(v)}")
+        if np.any(np.asarray(v) < 0):
+            raise ValueError("gains must be >= 0")
+        return v
+
+
+class InitialSpec(_Strict):
+    position: list[FiniteFloat] = Field(min_length=3, max_length=3)
+    rpy: list[FiniteFloat] = Field(default_factory=lambda: [0.0, 0.0, 0.0], min_length=3, max_length=3)
+
+
+class ScenarioSpec(_Strict):
+    name: str
+    description: str = ""
+    robot: str
+    platform: PlatformOverride = Field(default_factory=PlatformOverride)
+    limits: LimitsOverride = Field(default_factory=LimitsOverride)
+    dt: PositiveFloat = 0.001
+    duration: PositiveFloat | None = Field(None, description="default: the trajectory's duration plus 1 s")
+    initial: InitialSpec | None = Field(None, description="default: the trajectory's first pose, at rest")
+    trajectory: TrajectorySpec
+    controller: ControllerSpec = Field(default_factory=ControllerSpec)
+
+    @model_validator(mode="after")
+    def _dt_sane(self) -> ScenarioSpec:
+        if self.dt > 0.1:
+            raise ValueError(f"dt: {self.dt} s is too coarse for a cable robot (at most 0.1)")
+        return self
+
+
+@dataclass(frozen=True)
+class Scenario:
+    name: str
+    description: str
+    source: str  # the file it came from
+    robot: Robot  # with the scenario's mass/payload and limits applied
+    dt: float
+    duration: float
+    initial_position: np.ndarray
+    initial_rotation: np.ndarray
+    trajectory: Trajectory
+    variant: Variant
+    gains: Gains
+    tda_method: str
+    tda_options: dict[str, Any]
+    spec: ScenarioSpec
+
+    @property
+    def total_steps(self) -> int:
+        return round(self.duration / self.dt)
+
+    def info(self) -> dict[str, Any]:
+        """A JSON/msgpack-friendly description (served on ``session/info``)."""
+        return {
+            "scenario": self.name,
+            "dt": self.dt,
+            "duration": self.duration,
+            "total_steps": self.total_steps,
+            "robot": self.robot.summary(),
+            "controller": {
+                "variant": self.variant,
+                "kp": self.gains.kp.tolist(),
+                "kd": self.gains.kd.tolist(),
+                "tda": self.tda_method,
+            },
+        }
+
+
+def scenario_from_spec(spec: ScenarioSpec, where: str, base_dir: Path | None = None) -> Scenario:
+    robot_ref = spec.robot
+    if base_dir is not None and robot_ref.endswith((".yaml", ".yml")) and not Path(robot_ref).is_absolute():
+        robot_ref = str(base_dir / robot_ref)
+    try:
+        robot = load_robot(robot_ref)
+    except InputError as exc:
+        raise InputError(f"{where}: robot: {exc}") from None
+    if spec.platform.mass is not None:
+        robot = robot.with_mass(spec.platform.mass)
+    robot = robot.with_payload(spec.platform.payload)
+    tmin = robot.tmin if spec.limits.tmin is None else spec.limits.tmin
+    tmax = robot.tmax if spec.limits.tmax is None else spec.limits.tmax
+    if tmin > tmax:
+        raise InputError(f"{where}: limits: tmin ({tmin}) must not exceed tmax ({tmax})")
+    robot = robot.replace(tmin=float(tmin), tmax=float(tmax))
+    try:
+        trajectory = spec.trajectory.build()
+    except ValueError as exc:
+        raise InputError(f"{where}: trajectory: {exc}") from None
+    duration = spec.duration if spec.duration is not None else trajectory.duration + 1.0
+    if spec.initial is not None:
+        p0 = np.array(spec.initial.position, dtype=float)
+        R0 = rpy_to_matrix(*spec.initial.rpy)
+    else:
+        first = trajectory.sample(0.0)
+        p0, R0 = first.position.copy(), first.rotation.copy()
+    steps = round(duration / spec.dt)
+    if steps < 1:
+        raise InputError(f"{where}: duration: shorter than one step of dt = {spec.dt}")
+    return Scenario(
+        name=spec.name,
+        description=spec.description,
+        source=where,
+        robot=robot,
+        dt=float(spec.dt),
+        duration=float(duration),
+        initial_position=p0,
+        initial_rotation=R0,
+        trajectory=trajectory,
+        variant=spec.controller.variant,
+        gains=Gains.of(spec.controller.kp, spec.controller.kd),
+        tda_method=spec.controller.tda.method,
+        tda_options=dict(spec.controller.tda.options),
+        spec=spec,
+    )
+
+
+def load_scenario(name_or_path: str | Path, overrides: dict[str, Any] | None = None) -> Scenario:
+    """A shipped scenario name or a YAML path, plus optional top-level overrides (e.g. ``{"duration": 2}``)."""
+    path = resolve(name_or_path, "scenarios", "scenario")
+    data = read_yaml(path)
+    for key, value in (overrides or {}).items():
+        if value is not None:
+            data[key] = value
+    spec = parse_model(ScenarioSpec, data, path)
+    return scenario_from_spec(spec, str(path), path.parent)
+
+
+def shipped_scenarios() -> list[str]:
+    return shipped_names("scenarios")

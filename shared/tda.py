@@ -1,0 +1,433 @@
+"""Tension distribution algorithms (TDA): cable tensions f with W f = w and tmin ≤ f ≤ tmax. No I/O.
+
+``W`` is the k×m wrench matrix restricted to the controlled rows (k = 3 or 6, m cables), ``w`` the
+wrench the cables must exert (see :mod:`cdpr.kinematics` for the sign convention). Methods, by
+registry name (:data:`METHODS`, :func:`make_tda`):
+
+``qp``
+    The seed paper's eq. 8, the 2-norm optimal distribution: min ‖f‖² s.t. W f = w, tmin ≤ f ≤ tmax.
+    Solved with ``qpsolvers`` (OSQP by default, warm-started from the previous call), then made exact:
+    the equality-constrained least-norm problem is solved on the active set the solver found and the
+    KKT conditions (bounds, multiplier signs) are checked; the solver's own answer is the fallback.
+``closed-form``
+    Pott, Bruckmann & Mikelsons (2009), "Closed-form force distribution for parallel wire robots":
+    f = f_m + W⁺(w − W f_m), f_m = (tmin + tmax)/2, in a single shot. When f leaves the bounds the
+    method has failed: status ``out_of_bounds``, tensions clipped to the bounds, ``feasible=False``.
+``improved-closed-form``
+    Pott (2014), "An improved force distribution algorithm for over-constrained cable-driven parallel
+    robots" (the ``IMPROVED_CLOSED_FORM`` solver of CASPR): after the closed form, the cable with the
+    largest bound violation is fixed at that bound and the closed form is repeated on the remaining
+    cables, until every tension is admissible or fewer than k cables (or rank k) remain.
+``continuity``
+    min ‖f − f_prev‖² + ε‖f − f_ref‖² s.t. W f = w, bounds, where f_prev is the tension vector returned
+    by the previous call (the first call after construction or :meth:`~TensionDistributor.reset`
+    solves the ``qp`` problem). f_ref is 0 by default (``reference="min-norm"``: a constant wrench
+    converges to the ``qp`` answer, in about 1/ε calls), or f_m (``reference="mid-range"``). An
+    optional ``max_rate`` (N per call) adds the bounds |f − f_prev| ≤ max_rate, dropped when they
+    make the wrench unreachable. This smooths the "tension spikes" of the paper's Fig. 2–3: the answer
+    moves as little as the new wrench allows instead of jumping with the qp's active set.
+
+Result statuses (:data:`STATUSES`); ``feasible`` is True exactly for the first three:
+
+* ``optimal``: W f = w within bounds, and f is the method's own answer.
+* ``suboptimal``: W f = w within bounds, but the QP solver failed and f is the bounded least-squares
+  fallback (admissible, not the method's optimum).
+* ``rate_relaxed``: ``continuity`` only: optimal after dropping the ``max_rate`` bounds.
+* ``out_of_bounds``: closed-form methods only: admissible tensions exist, the method did not find them;
+  f is its answer clipped to the bounds.
+* ``infeasible``: w is outside the wrench-feasible set; f is the nearest admissible answer (it minimises
+  ‖W f − w‖₂ within the bounds; the QP methods pick their own optimum among such f).
+* ``solver_failed``: every solver failed; f is the last feasible tension vector (clipped) or tmin.
+* ``invalid_input``: W or w is not finite; f is the last feasible tension vector (clipped) or tmin.
+
+Tensions are always finite and inside [tmin, tmax]. Shape errors and inconsistent bounds (non-finite,
+tmin > tmax) are programming errors and raise ``ValueError``.
+"""
+
+from __future__ import annotations
+
+import math
+import warnings
+from abc import ABC, abstractmethod
+from dataclasses import dataclass
+from types import MappingProxyType
+from typing import Any, ClassVar, Literal, get_args
+
+import numpy as np
+import qpsolvers
+import scipy.sparse as spa
+from numpy.typing import ArrayLike
+from scipy.optimize import lsq_linear
+
+from cdpr.rotation import Array
+
+Status = Literal[
+    "optimal", "suboptimal", "rate_relaxed", "out_of_bounds", "infeasible", "solver_failed", "invalid_input"
+]
+STATUSES: tuple[str, ...] = get_args(Status)
+Reference = Literal["min-norm", "mid-range"]
+FEASIBLE_STATUSES: frozenset[str] = frozenset({"optimal", "suboptimal", "rate_relaxed"})
+
+# OSQP is ADMM with loose defaults; these settings apply to the scaled problem (tensions / max bound).
+_OSQP_SETTINGS: MappingProxyType[str, Any] = MappingProxyType(
+    {"eps_abs": 1e-9, "eps_rel": 1e-9, "polish": True, "max_iter": 20000, "polish_refine_iter": 5}
+)
+_SOLVER_ERRORS = (qpsolvers.QPError, ValueError, ArithmeticError, np.linalg.LinAlgError)
+
+
+@dataclass(frozen=True)
+class TdaResult:
+    """One tension distribution. ``tensions`` is read-only."""
+
+    tensions: Array  # (m,), finite, within [tmin, tmax]
+    feasible: bool  # W f = w met (residual <= tolerance) with admissible tensions
+    residual: float  # ‖W f − w‖₂ of ``tensions`` (inf for invalid input)
+    status: str  # one of STATUSES
+    method: str  # registry name
+
+
+@dataclass(frozen=True)
+class _Problem:
+    W: Array  # (k, m)
+    w: Array  # (k,)
+    lb: Array  # (m,)
+    ub: Array  # (m,)
+    tol: float  # residual below which W f = w counts as met
+
+    def residual(self, f: Array) -> float:
+        return float(np.linalg.norm(self.W @ f - self.w))
+
+
+def _bound_scale(lb: Array, ub: Array) -> float:
+    return max(1.0, float(np.abs(lb).max(initial=0.0)), float(np.abs(ub).max(initial=0.0)))
+
+
+def _as_arrays(W: ArrayLike, w: ArrayLike, tmin: ArrayLike, tmax: ArrayLike) -> tuple[Array, Array, Array, Array]:
+    W = np.asarray(W, dtype=float)
+    if W.ndim != 2 or W.shape[1] == 0:
+        raise ValueError(f"W must be a k×m matrix with m >= 1 (got shape {W.shape})")
+    k, m = W.shape
+    w = np.asarray(w, dtype=float)
+    if w.shape != (k,):
+        raise ValueError(f"w must have shape ({k},) to match W {W.shape} (got {w.shape})")
+    try:
+        lb = np.array(np.broadcast_to(np.asarray(tmin, dtype=float), (m,)))
+        ub = np.array(np.broadcast_to(np.asarray(tmax, dtype=float), (m,)))
+    except ValueError as e:
+        raise ValueError(f"tmin and tmax must be scalars or ({m},) arrays") from e
+    if not (np.all(np.isfinite(lb)) and np.all(np.isfinite(ub))):
+        raise ValueError("tension bounds must be finite")
+    if np.any(lb > ub):
+        raise ValueError(f"tmin must not exceed tmax (cables {np.flatnonzero(lb > ub).tolist()})")
+    return W, w, lb, ub
+
+
+def nearest_admissible(W: Array, w: Array, lb: Array, ub: Array) -> Array:
+    """Tensions in [lb, ub] minimising ‖W f − w‖₂ (bounded-variable least squares)."""
+    f = lb.copy()
+    free = lb < ub
+    if free.any():
+        r = w - W[:, ~free] @ lb[~free]
+        sol = lsq_linear(W[:, free], r, bounds=(lb[free], ub[free]), method="bvls", tol=1e-12)
+        f[free] = sol.x
+    return np.clip(f, lb, ub)
+
+
+def _min_norm(A: Array, b: Array) -> Array:
+    """A⁺ b, the least-norm (least-squares) solution of A x = b."""
+    return np.linalg.lstsq(A, b, rcond=None)[0]
+
+
+def _refine(alpha: float, q: Array, prob: _Problem, w: Array, f0: Array) -> Array | None:
+    """The exact minimiser of ½α‖f‖² + qᵀf s.t. W f = w, lb ≤ f ≤ ub, from the active set of f0.
+
+    Solves the equality-constrained problem with the active bounds fixed, then checks the KKT
+    conditions (free tensions within bounds, multiplier signs); a violated condition moves one cable
+    in or out of the active set. None if no KKT point is reached within a few corrections.
+    """
+    W, lb, ub = prob.W, prob.lb, prob.ub
+    m = lb.size
+    scale = _bound_scale(lb, ub)
+    pinned = lb >= ub
+    at_lo = pinned | (f0 <= lb + 1e-6 * scale)
+    at_hi = ~at_lo & (f0 >= ub - 1e-6 * scale)
+    c = -q / alpha  # unconstrained minimiser
+    btol = 1e-12 * scale
+    gtol = 1e-9 * (alpha * scale + float(np.abs(q).max(initial=0.0)))
+    for _ in range(m + 2):
+        free = ~(at_lo | at_hi)
+        f = np.where(at_lo, lb, ub)
+        Wf = W[:, free]
+        if free.any():
+            f[free] = c[free] + _min_norm(Wf, w - W[:, ~free] @ f[~free] - Wf @ c[free])
+        if np.linalg.norm(W @ f - w) > prob.tol:
+            return None  # this active set cannot produce the wrench
+        if not free.any():
+            return None  # multipliers undetermined; leave it to the caller's fallback
+        grad = alpha * f + q
+        lam = _min_norm(Wf.T, grad[free])
+        mu = grad - W.T @ lam  # ≥ 0 at lower bounds, ≤ 0 at upper bounds, 0 on free cables
+        viol = np.where(free, np.maximum(lb - f, f - ub), -np.inf)
+        wrong = np.where(at_lo & ~pinned, -mu, np.where(at_hi, mu, -np.inf))
+        if viol.max() > btol:
+            i = int(np.argmax(viol))
+            if f[i] < lb[i]:
+                at_lo[i] = True
+            else:
+                at_hi[i] = True
+        elif wrong.max() > gtol:
+            i = int(np.argmax(wrong))
+            at_lo[i] = at_hi[i] = False
+        else:
+            return np.clip(f, lb, ub)
+    return None
+
+
+class TensionDistributor(ABC):
+    """A tension distribution method. Keeps the previous answer (warm start, continuity) between calls."""
+
+    name: ClassVar[str]
+
+    def __init__(self, atol: float = 1e-6) -> None:
+        """``atol``: residual ‖W f − w‖₂ (N, N·m) below which the wrench counts as met."""
+        if not atol > 0.0:
+            raise ValueError(f"atol must be > 0 (got {atol})")
+        self.atol = float(atol)
+        self._previous: Array | None = None  # tensions returned by the last call
+        self._last_feasible: Array | None = None
+
+    def reset(self) -> None:
+        """Forget the previous tensions (warm start, continuity reference, last feasible answer)."""
+        self._previous = None
+        self._last_feasible = None
+
+    def solve(self, W: ArrayLike, w: ArrayLike, tmin: ArrayLike, tmax: ArrayLike) -> TdaResult:
+        """Tensions for the wrench ``w`` (k,) through ``W`` (k×m) within [tmin, tmax] (scalars or (m,))."""
+        W, w, lb, ub = _as_arrays(W, w, tmin, tmax)
+        if not (np.all(np.isfinite(W)) and np.all(np.isfinite(w))):
+            return self._finish(self._keep(lb, ub), math.inf, "invalid_input")
+        scale = float(np.abs(w).max()) + float(np.abs(W).sum(axis=1).max()) * _bound_scale(lb, ub)
+        prob = _Problem(W, w, lb, ub, tol=max(self.atol, 64.0 * np.finfo(float).eps * scale))
+        try:
+            f, status = self._solve(prob)
+        except _SOLVER_ERRORS:
+            f, status = None, "solver_failed"
+        if f is None or not np.all(np.isfinite(f)):
+            return self._finish(self._keep(lb, ub), prob.residual(self._keep(lb, ub)), "solver_failed")
+        f = np.clip(f, lb, ub)
+        residual = prob.residual(f)
+        if status in FEASIBLE_STATUSES and residual > prob.tol:
+            status = "solver_failed"  # defensive: never report a wrench that is not met
+        return self._finish(f, residual, status)
+
+    def _keep(self, lb: Array, ub: Array) -> Array:
+        """The last feasible tensions, clipped to the current bounds, or tmin."""
+        last = self._last_feasible
+        return np.clip(last, lb, ub) if last is not None and last.shape == lb.shape else lb.copy()
+
+    def _finish(self, f: Array, residual: float, status: str) -> TdaResult:
+        f = np.array(f, dtype=float)
+        f.flags.writeable = False
+        feasible = status in FEASIBLE_STATUSES
+        self._previous = f
+        if feasible:
+            self._last_feasible = f
+        return TdaResult(tensions=f, feasible=feasible, residual=residual, status=status, method=self.name)
+
+    def _previous_for(self, m: int) -> Array | None:
+        prev = self._previous
+        return prev if prev is not None and prev.shape == (m,) else None
+
+    @abstractmethod
+    def _solve(self, prob: _Problem) -> tuple[Array | None, str]:
+        """(tensions, status) for a valid problem; the base class clips and computes the residual."""
+
+
+def _fallback(prob: _Problem, method_answer: Array) -> tuple[Array, str]:
+    """After a closed-form failure: ``infeasible`` with the nearest admissible tensions, or ``out_of_bounds``."""
+    nearest = nearest_admissible(prob.W, prob.w, prob.lb, prob.ub)
+    if prob.residual(nearest) > prob.tol:
+        return nearest, "infeasible"
+    return np.clip(method_answer, prob.lb, prob.ub), "out_of_bounds"
+
+
+class ClosedForm(TensionDistributor):
+    """Pott et al. 2009 closed form, single shot: f = f_m + W⁺(w − W f_m)."""
+
+    name: ClassVar[str] = "closed-form"
+
+    def _solve(self, prob: _Problem) -> tuple[Array | None, str]:
+        fm = 0.5 * (prob.lb + prob.ub)
+        f = np.clip(fm + _min_norm(prob.W, prob.w - prob.W @ fm), prob.lb, prob.ub)
+        if prob.residual(f) <= prob.tol:
+            return f, "optimal"
+        return _fallback(prob, f)
+
+
+class ImprovedClosedForm(TensionDistributor):
+    """Pott 2014 improved closed form: fix the most violated tension at its bound and repeat."""
+
+    name: ClassVar[str] = "improved-closed-form"
+
+    def _solve(self, prob: _Problem) -> tuple[Array | None, str]:
+        W, w, lb, ub = prob.W, prob.w, prob.lb, prob.ub
+        k = W.shape[0]
+        fm = 0.5 * (lb + ub)
+        f = fm.copy()
+        free = np.ones(lb.size, dtype=bool)
+        while True:
+            Wf = W[:, free]
+            f[free] = fm[free] + _min_norm(Wf, w - W[:, ~free] @ f[~free] - Wf @ fm[free])
+            clipped = np.clip(f, lb, ub)
+            if prob.residual(clipped) <= prob.tol:
+                return clipped, "optimal"
+            viol = np.where(free, np.maximum(lb - f, f - ub), -np.inf)
+            i = int(np.argmax(viol))
+            if viol[i] <= 0.0 or free.sum() <= k:
+                return _fallback(prob, f)  # rank lost, or no cable left to fix
+            f[i] = lb[i] if f[i] < lb[i] else ub[i]
+            free[i] = False
+
+
+class _QpDistributor(TensionDistributor):
+    """Shared machinery of the QP methods: min ½α‖f‖² + qᵀf s.t. W f = w, bounds."""
+
+    def __init__(self, solver: str = "osqp", atol: float = 1e-6) -> None:
+        super().__init__(atol)
+        if solver not in qpsolvers.available_solvers:
+            raise ValueError(
+                f"QP solver {solver!r} is not installed (available: {', '.join(qpsolvers.available_solvers)})"
+            )
+        self.solver = solver
+
+    @abstractmethod
+    def _objective(self, prob: _Problem) -> tuple[float, Array]:
+        """(α, q) of the cost ½α‖f‖² + qᵀf."""
+
+    def _rate_bounds(self, prob: _Problem) -> tuple[Array, Array] | None:
+        """Tighter bounds to try first (continuity's max_rate), or None."""
+        return None
+
+    def _qp(self, alpha: float, q: Array, prob: _Problem, lb: Array, ub: Array) -> tuple[Array, str] | None:
+        """Solve with the QP solver, then make it exact; None if no admissible answer comes out."""
+        sub = _Problem(prob.W, prob.w, lb, ub, prob.tol)
+        s = _bound_scale(lb, ub)  # solve for f / s so the solver's absolute tolerances are relative
+        m = lb.size
+        if self.solver in qpsolvers.sparse_solvers:
+            P: Any = spa.identity(m, format="csc") * alpha
+            A: Any = spa.csc_matrix(prob.W)
+        else:
+            P, A = alpha * np.eye(m), prob.W
+        prev = self._previous_for(m)
+        initvals = None if prev is None else np.clip(prev, lb, ub) / s
+        settings = dict(_OSQP_SETTINGS) if self.solver == "osqp" else {}
+        problem = qpsolvers.Problem(P, q / s, A=A, b=prob.w / s, lb=lb / s, ub=ub / s)
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")  # failures are reported through the status instead
+            try:
+                solution = qpsolvers.solve_problem(problem, solver=self.solver, initvals=initvals, **settings)
+            except _SOLVER_ERRORS:
+                return None
+        x = solution.x
+        if x is None or np.shape(x) != (m,) or not np.all(np.isfinite(x)):
+            return None
+        x = np.asarray(x, dtype=float) * s
+        exact = _refine(alpha, q, sub, prob.w, x)
+        if exact is not None:
+            return exact, "optimal"
+        x = np.clip(x, lb, ub)
+        if sub.residual(x) <= prob.tol:
+            return x, "optimal" if solution.found else "suboptimal"
+        return None
+
+    def _solve(self, prob: _Problem) -> tuple[Array | None, str]:
+        alpha, q = self._objective(prob)
+        tight = self._rate_bounds(prob)
+        if tight is not None:
+            answer = self._qp(alpha, q, prob, *tight)
+            if answer is not None:
+                return answer
+        answer = self._qp(alpha, q, prob, prob.lb, prob.ub)
+        if answer is not None:
+            f, status = answer
+            return f, "rate_relaxed" if tight is not None and status == "optimal" else status
+        # The solver failed: start the active-set refinement from the bounded least-squares answer.
+        nearest = nearest_admissible(prob.W, prob.w, prob.lb, prob.ub)
+        if prob.residual(nearest) <= prob.tol:
+            exact = _refine(alpha, q, prob, prob.w, nearest)
+            if exact is not None:
+                return exact, "optimal" if tight is None else "rate_relaxed"
+            return nearest, "suboptimal"
+        # Unreachable wrench: the method's optimum among the tensions that come nearest to it.
+        best = _refine(alpha, q, prob, prob.W @ nearest, nearest)
+        if best is not None and prob.residual(best) <= prob.residual(nearest) + prob.tol:
+            return best, "infeasible"
+        return nearest, "infeasible"
+
+
+class MinNormQp(_QpDistributor):
+    """The paper's eq. 8: min ‖f‖² s.t. W f = w, tmin ≤ f ≤ tmax."""
+
+    name: ClassVar[str] = "qp"
+
+    def _objective(self, prob: _Problem) -> tuple[float, Array]:
+        return 1.0, np.zeros(prob.lb.size)
+
+
+class ContinuityQp(_QpDistributor):
+    """min ‖f − f_prev‖² + ε‖f − f_ref‖² s.t. W f = w, bounds (and |f − f_prev| ≤ max_rate if possible)."""
+
+    name: ClassVar[str] = "continuity"
+
+    def __init__(
+        self,
+        epsilon: float = 1e-2,
+        max_rate: float | None = None,
+        reference: Reference = "min-norm",
+        solver: str = "osqp",
+        atol: float = 1e-6,
+    ) -> None:
+        """``epsilon``: weight of the pull towards the reference tensions f_ref, per call;
+        ``max_rate``: largest change of a tension per call (N), None = unlimited;
+        ``reference``: ``min-norm`` (f_ref = 0: a constant wrench converges to the ``qp`` answer) or
+        ``mid-range`` (f_ref = f_m = (tmin + tmax)/2: converges to the closed-form answer, tensions rise
+        towards mid-range)."""
+        super().__init__(solver=solver, atol=atol)
+        if not (math.isfinite(epsilon) and epsilon >= 0.0):
+            raise ValueError(f"epsilon must be >= 0 (got {epsilon})")
+        if max_rate is not None and not max_rate > 0.0:
+            raise ValueError(f"max_rate must be > 0 or None (got {max_rate})")
+        if reference not in get_args(Reference):
+            raise ValueError(f"reference must be one of {get_args(Reference)} (got {reference!r})")
+        self.epsilon = float(epsilon)
+        self.max_rate = None if max_rate is None else float(max_rate)
+        self.reference = reference
+
+    def _objective(self, prob: _Problem) -> tuple[float, Array]:
+        prev = self._previous_for(prob.lb.size)
+        if prev is None:
+            return 1.0, np.zeros(prob.lb.size)  # first call: the qp problem
+        ref = 0.5 * (prob.lb + prob.ub) if self.reference == "mid-range" else 0.0
+        return 1.0 + self.epsilon, -(prev + self.epsilon * ref)
+
+    def _rate_bounds(self, prob: _Problem) -> tuple[Array, Array] | None:
+        prev = self._previous_for(prob.lb.size)
+        if prev is None or self.max_rate is None:
+            return None
+        lo = np.clip(prev - self.max_rate, prob.lb, prob.ub)
+        hi = np.clip(prev + self.max_rate, prob.lb, prob.ub)
+        return lo, hi
+
+
+METHODS: dict[str, type[TensionDistributor]] = {
+    cls.name: cls for cls in (MinNormQp, ClosedForm, ImprovedClosedForm, ContinuityQp)
+}
+
+
+def make_tda(name: str, **options: Any) -> TensionDistributor:
+    """A new distributor of the registered method ``name`` built with ``options``."""
+    try:
+        cls = METHODS[name]
+    except KeyError:
+        raise ValueError(f"unknown TDA method {name!r} (known: {', '.join(sorted(METHODS))})") from None
+    return cls(**options)

@@ -1,0 +1,170 @@
+"""Zenoh plumbing shared by every service: one config builder, one event loop helper.
+
+The only place that builds a ``zenoh.Config`` (from CLI flags, ``ZENOH_CONFIG`` or ``--zenoh-config``)
+and the only place that knows how a service waits for messages. Services stay thin: they declare what
+they read, then handle one event at a time in their own loop.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import queue
+import signal
+import sys
+import threading
+import time
+from collections.abc import Iterator, Sequence
+from dataclasses import dataclass
+from types import FrameType
+from typing import Any
+
+import zenoh
+
+from cdpr.errors import InputError
+
+# Publications of the lock-step loop are small and must never be dropped: reliable, blocking
+# congestion control, express (no batching delay).
+PUBLISH_OPTS: dict[str, Any] = {
+    "congestion_control": zenoh.CongestionControl.BLOCK,
+    "priority": zenoh.Priority.REAL_TIME,
+    "express": True,
+    "reliability": zenoh.Reliability.RELIABLE,
+}
+
+
+def zenoh_config(
+    mode: str = "peer",
+    connect: Sequence[str] = (),
+    listen: Sequence[str] = (),
+    config_file: str | None = None,
+) -> zenoh.Config:
+    """A Zenoh config: a JSON5 file (``config_file`` or ``$ZENOH_CONFIG``) plus the given overrides.
+
+    With explicit endpoints, multicast scouting is switched off so that sessions on one machine never
+    join each other by accident; without any, Zenoh's defaults apply (multicast discovery on the LAN).
+    """
+    path = config_file or os.environ.get("ZENOH_CONFIG")
+    if path:
+        try:
+            conf = zenoh.Config.from_file(path)
+        except Exception as exc:  # zenoh raises ZError with the parser's message
+            raise InputError(f"{path}: not a valid Zenoh JSON5 config: {str(exc).splitlines()[0]}") from None
+    else:
+        conf = zenoh.Config()
+    if mode not in ("peer", "client", "router"):
+        raise InputError(f"--mode: Zenoh mode must be peer, client or router, got {mode!r}")
+    if not path or mode != "peer":
+        conf.insert_json5("mode", json.dumps(mode))
+    if connect:
+        conf.insert_json5("connect/endpoints", json.dumps(list(connect)))
+    if listen:
+        conf.insert_json5("listen/endpoints", json.dumps(list(listen)))
+    if connect or listen:
+        conf.insert_json5("scouting/multicast/enabled", "false")
+    return conf
+
+
+def open_session(conf: zenoh.Config, what: str) -> zenoh.Session:
+    """Open a Zenoh session, turning a bad endpoint or a port in use into one InputError line."""
+    try:
+        return zenoh.open(conf)
+    except Exception as exc:
+        first = str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__
+        raise InputError(f"{what}: cannot open the Zenoh session: {first}") from None
+
+
+@dataclass(frozen=True, slots=True)
+class Event:
+    """One thing that happened to a service: a message on a key, or a liveliness change."""
+
+    kind: str  # a protocol key name ("tick", "state", ...), or "alive" / "gone" for liveliness
+    payload: bytes
+    key: str
+    received: float  # time.monotonic() at receipt, for statistics only (never for the simulation)
+
+
+class Inbox:
+    """Callbacks from Zenoh threads put events here; the service's single loop takes them out."""
+
+    def __init__(self) -> None:
+        self._q: queue.SimpleQueue[Event] = queue.SimpleQueue()
+
+    def subscribe(self, session: zenoh.Session, key: str, kind: str) -> zenoh.Subscriber:
+        put = self._q.put
+
+        def on_sample(sample: zenoh.Sample) -> None:
+            put(Event(kind, sample.payload.to_bytes(), str(sample.key_expr), time.monotonic()))
+
+        return session.declare_subscriber(key, on_sample)
+
+    def watch_liveliness(self, session: zenoh.Session, key: str) -> zenoh.Subscriber:
+        """Liveliness tokens matching ``key``: events ``alive``/``gone``, current ones included."""
+        put = self._q.put
+
+        def on_token(sample: zenoh.Sample) -> None:
+            kind = "alive" if sample.kind == zenoh.SampleKind.PUT else "gone"
+            put(Event(kind, b"", str(sample.key_expr), time.monotonic()))
+
+        return session.liveliness().declare_subscriber(key, on_token, history=True)
+
+    def get(self, timeout: float | None) -> Event | None:
+        try:
+            return self._q.get(timeout=timeout) if timeout is None or timeout > 0 else self._q.get_nowait()
+        except queue.Empty:
+            return None
+
+    def drain(self, timeout: float) -> Iterator[Event]:
+        """Wait up to ``timeout`` for one event, then yield it and everything already queued."""
+        ev = self.get(timeout)
+        while ev is not None:
+            yield ev
+            ev = self.get(0)
+
+
+class StopFlag:
+    """Set by SIGINT/SIGTERM (or by the service itself); the loop checks it between events."""
+
+    def __init__(self) -> None:
+        self._event = threading.Event()
+        self.signal: int | None = None
+
+    def install(self) -> StopFlag:
+        if threading.current_thread() is threading.main_thread():
+            for sig in (signal.SIGINT, signal.SIGTERM):
+                signal.signal(sig, self._on_signal)
+        return self
+
+    def _on_signal(self, signum: int, _frame: FrameType | None) -> None:
+        self.signal = signum
+        self._event.set()
+
+    def set(self) -> None:
+        self._event.set()
+
+    def __bool__(self) -> bool:
+        return self._event.is_set()
+
+
+def log(service: str, message: str) -> None:
+    """One line on stderr, prefixed with the service name (services' human-readable log)."""
+    sys.stderr.write(f"[{service}] {message}\n")  # one write, so lines of several processes don't mix
+    sys.stderr.flush()
+
+
+class RateLimitedLog:
+    """Logs the first occurrences of a problem, then one line per interval with a count."""
+
+    def __init__(self, service: str, every: float = 5.0, first: int = 5) -> None:
+        self.service, self.every, self.first = service, every, first
+        self.counts: dict[str, int] = {}
+        self._last: dict[str, float] = {}
+
+    def __call__(self, what: str, message: str) -> None:
+        n = self.counts.get(what, 0) + 1
+        self.counts[what] = n
+        now = time.monotonic()
+        if n <= self.first or now - self._last.get(what, 0.0) >= self.every:
+            self._last[what] = now
+            suffix = f" ({n} so far)" if n > self.first else ""
+            log(self.service, f"{message}{suffix}")
