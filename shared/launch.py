@@ -27,7 +27,7 @@ from cdpr.scenario import Scenario
 from cdpr.service import PARENT_ENV
 from cdpr.transport import Inbox, StopFlag, log, open_session, zenoh_config
 
-STOP_GRACE = 5.0  # seconds a child gets to stop by itself before it is terminated, then killed
+STOP_GRACE = 4.0  # seconds a child gets to stop (by itself, then after SIGTERM) before it is killed
 
 
 def free_port() -> int:
@@ -60,17 +60,17 @@ class Children:
     def failed(self) -> list[tuple[str, int]]:
         return [(n, p.returncode) for n, p in self.procs.items() if p.poll() is not None and p.returncode != 0]
 
-    def stop(self, grace: float = STOP_GRACE) -> dict[str, int]:
-        deadline = time.monotonic() + grace
-        for sig in (None, signal.SIGTERM, signal.SIGKILL):
+    def stop(self, wait_first: float) -> dict[str, int]:
+        """Give the children ``wait_first`` seconds to end by themselves, then SIGTERM, then SIGKILL."""
+        for sig, grace in ((None, wait_first), (signal.SIGTERM, STOP_GRACE), (signal.SIGKILL, 2.0)):
             for p in self.procs.values():
-                if p.poll() is None and sig is not None:
+                if sig is not None and p.poll() is None:
                     p.send_signal(sig)
+            deadline = time.monotonic() + grace
             while time.monotonic() < deadline and any(p.poll() is None for p in self.procs.values()):
                 time.sleep(0.02)
             if all(p.poll() is not None for p in self.procs.values()):
                 break
-            deadline = time.monotonic() + (grace if sig is None else 2.0)
         for p in self.procs.values():
             p.wait()
         return {n: p.returncode for n, p in self.procs.items()}
@@ -165,7 +165,8 @@ def run_session(
                     rate = final.stats.get("rate", 0.0) if final is not None else 0.0
                     log("cdpr", f"step {max(k, 0)}/{n} ({100.0 * max(k, 0) / n:.0f} %), {rate:.0f} steps/s")
         finally:
-            codes = children.stop()
+            # After a normal end the services leave by themselves; otherwise they are told to.
+            codes = children.stop(wait_first=STOP_GRACE if exit_ok else 0.0)
             for s in subs:
                 s.undeclare()
     if stop.signal is not None:

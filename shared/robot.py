@@ -204,14 +204,14 @@ class Robot:
 
     def with_mass(self, mass: float) -> Robot:
         """The same robot whose whole platform has this mass, with the solid-shape inertia for it."""
-        if not mass > 0.0:
-            raise InputError(f"platform mass must be > 0 (got {mass})")
+        if not 0.0 < mass < np.inf:
+            raise InputError(f"platform mass must be finite and > 0 (got {mass})")
         return self.replace(mass=float(mass), inertia=self.shape.box_inertia(mass))
 
     def with_payload(self, payload: float) -> Robot:
         """A point-mass payload rigidly attached at the centre of mass: mass grows, inertia is unchanged."""
-        if not payload >= 0.0:
-            raise InputError(f"payload must be >= 0 (got {payload})")
+        if not 0.0 <= payload < np.inf:
+            raise InputError(f"payload must be finite and >= 0 (got {payload})")
         return self.replace(mass=self.mass + float(payload))
 
     def summary(self) -> dict[str, object]:

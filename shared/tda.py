@@ -102,7 +102,9 @@ def _bound_scale(lb: Array, ub: Array) -> float:
     return max(1.0, float(np.abs(lb).max(initial=0.0)), float(np.abs(ub).max(initial=0.0)))
 
 
-def _as_arrays(W: ArrayLike, w: ArrayLike, tmin: ArrayLike, tmax: ArrayLike) -> tuple[Array, Array, Array, Array]:
+def _as_arrays(
+    W: ArrayLike, w: ArrayLike, tmin: ArrayLike, tmax: ArrayLike
+) -> tuple[Array, Array, Array, Array]:
     W = np.asarray(W, dtype=float)
     if W.ndim != 2 or W.shape[1] == 0:
         raise ValueError(f"W must be a k×m matrix with m >= 1 (got shape {W.shape})")
@@ -213,7 +215,8 @@ class TensionDistributor(ABC):
         except _SOLVER_ERRORS:
             f, status = None, "solver_failed"
         if f is None or not np.all(np.isfinite(f)):
-            return self._finish(self._keep(lb, ub), prob.residual(self._keep(lb, ub)), "solver_failed")
+            kept = self._keep(lb, ub)
+            return self._finish(kept, prob.residual(kept), "solver_failed")
         f = np.clip(f, lb, ub)
         residual = prob.residual(f)
         if status in FEASIBLE_STATUSES and residual > prob.tol:
@@ -244,7 +247,7 @@ class TensionDistributor(ABC):
 
 
 def _fallback(prob: _Problem, method_answer: Array) -> tuple[Array, str]:
-    """After a closed-form failure: ``infeasible`` with the nearest admissible tensions, or ``out_of_bounds``."""
+    """After a closed-form failure: ``infeasible`` (nearest admissible tensions) or ``out_of_bounds``."""
     nearest = nearest_admissible(prob.W, prob.w, prob.lb, prob.ub)
     if prob.residual(nearest) > prob.tol:
         return nearest, "infeasible"

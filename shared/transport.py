@@ -33,16 +33,22 @@ PUBLISH_OPTS: dict[str, Any] = {
 }
 
 
+CONNECT_TIMEOUT = 30.0  # seconds a client keeps trying to reach its endpoints before giving up
+
+
 def zenoh_config(
     mode: str = "peer",
     connect: Sequence[str] = (),
     listen: Sequence[str] = (),
     config_file: str | None = None,
+    connect_timeout: float = CONNECT_TIMEOUT,
 ) -> zenoh.Config:
     """A Zenoh config: a JSON5 file (``config_file`` or ``$ZENOH_CONFIG``) plus the given overrides.
 
     With explicit endpoints, multicast scouting is switched off so that sessions on one machine never
     join each other by accident; without any, Zenoh's defaults apply (multicast discovery on the LAN).
+    A client keeps retrying its endpoints for ``connect_timeout`` seconds, so a service may be started
+    before the router it connects to.
     """
     path = config_file or os.environ.get("ZENOH_CONFIG")
     if path:
@@ -58,6 +64,10 @@ def zenoh_config(
         conf.insert_json5("mode", json.dumps(mode))
     if connect:
         conf.insert_json5("connect/endpoints", json.dumps(list(connect)))
+        conf.insert_json5("connect/timeout_ms", json.dumps({mode: int(connect_timeout * 1000)}))
+        conf.insert_json5(
+            "connect/retry", json.dumps({"period_init_ms": 100, "period_max_ms": 1000, "period_increase_factor": 2})
+        )
     if listen:
         conf.insert_json5("listen/endpoints", json.dumps(list(listen)))
     if connect or listen:

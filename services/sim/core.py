@@ -24,17 +24,20 @@ Model (seed paper §2.3 and §3.1)
   twist at the start of the step and reported in :attr:`StepReport.damping`, apart from the tensions.
   The passive U/S joint damping of the Gazebo model (``robot.passive_damping``) has no counterpart in a
   single-body model and is not simulated.
-* Integration: DART's ``World.step``, semi-implicit (symplectic) Euler. With forces evaluated at
-  ``(q_k, v_k)``: ``v_{k+1} = v_k + dt·M⁻¹(W f + w_g − C v_k)`` and then ``q_{k+1} = q_k ⊕ dt·v_{k+1}``.
-  With dartpy 6.20's ``FreeJoint`` this holds for the world-frame twist at the COM: the world-frame
-  finite difference ``(v_{k+1} − v_k)/dt`` equals :func:`cdpr.dynamics.forward_dynamics` to rounding
-  (tested), and ``t_{k+1} = t_k + dt·ṫ_{k+1}``. DART's body sleeping ("deactivation", on by default
-  in dartpy 6.20: a body slower than 1 cm/s for 0.5 s is frozen) is switched off.
+* Integration: DART's ``World.step``, semi-implicit (symplectic) Euler, forces evaluated at
+  ``(q_k, v_k)``: ``v_{k+1} = v_k + dt·M⁻¹(W f + w_g − C v_k)``, then the pose moves with the *new*
+  twist: ``t_{k+1} = t_k + dt·ṫ_{k+1}`` and ``R_{k+1} = exp(dt [ω_{k+1}]×) R_k`` (DART evaluates exp by
+  its Taylor series for small angles, error < θ³/6). With dartpy 6.20's ``FreeJoint`` this holds for the
+  world-frame twist at the COM, so ``(v_{k+1} − v_k)/dt`` equals :func:`cdpr.dynamics.forward_dynamics`
+  to rounding (tested). Local error O(dt²), global O(dt): a free fall from rest is ``g·t·dt/2`` below
+  ``g t²/2``. DART's body deactivation ("sleeping", on by default in dartpy 6.20's World: thresholds
+  1 cm/s and 0.05 rad/s held for 0.5 s) is switched off, so a slow platform is never frozen.
 
 The state is read back from DART in the world frame (``getTransform``, ``getLinearVelocity``,
-``getAngularVelocity`` of the body, whose origin is the COM) and the twist is written through the
-joint's world-frame setters, so nothing here depends on the frame of a joint's generalized velocities.
-The same inputs give bit-identical outputs; nothing is random and nothing lives in module globals.
+``getAngularVelocity`` of the body, whose origin is the COM). A free body's twist is written through
+the ``FreeJoint``'s world-frame setters, a planar body's as ``[ż, ẋ, θ̇_y]`` (the ZX joint's coordinates
+are in the world frame), so nothing depends on the frame of DART's generalized velocities.
+The same inputs give bit-identical outputs; nothing is random and no module state is mutable.
 """
 
 from __future__ import annotations
@@ -43,10 +46,9 @@ from dataclasses import dataclass, field
 
 import dartpy as dart
 import numpy as np
-from numpy.typing import ArrayLike
-
 from cdpr.robot import GRAVITY, Robot
 from cdpr.rotation import Array, matrix_to_quat
+from numpy.typing import ArrayLike
 
 _ORTHONORMAL_TOL = 1e-6  # a rotation given to the sim must satisfy ‖RᵀR − I‖∞ ≤ this, and det R > 0
 _PLANAR_TOL = 1e-9  # out-of-plane pose/twist components a planar robot tolerates (then set to 0)
@@ -168,7 +170,12 @@ class PlatformSim:
         return self.step_count * self.dt
 
     # -- state ------------------------------------------------------------------------------------
-    def reset(self, position: ArrayLike | None = None, rotation: ArrayLike | None = None, twist: ArrayLike | None = None) -> None:
+    def reset(
+        self,
+        position: ArrayLike | None = None,
+        rotation: ArrayLike | None = None,
+        twist: ArrayLike | None = None,
+    ) -> None:
         """Back to step 0 at the given pose and twist (defaults: home pose, at rest)."""
         p = _vector(self.robot.home_position if position is None else position, 3, "position")
         R = _rotation(self.robot.home_rotation if rotation is None else rotation)
@@ -218,9 +225,7 @@ class PlatformSim:
         d = vec / lengths[:, None]
         moments = np.einsum("ijk,nj,nk->ni", _LEVI_CIVITA, rb, d)
         rates = -(d @ v + moments @ w)
-        snap = _Snapshot(
-            *(_readonly(x) for x in (p, R, np.concatenate((v, w)), lengths, d, moments, rates))
-        )
+        snap = _Snapshot(*(_readonly(x) for x in (p, R, np.concatenate((v, w)), lengths, d, moments, rates)))
         self._snap = snap
         return snap
 
@@ -241,7 +246,12 @@ class PlatformSim:
 
     # -- dynamics ---------------------------------------------------------------------------------
     def step(self, tensions: np.ndarray) -> StepReport:
-        """Clamp ``tensions`` (m,) to [0, tmax], apply them and the cable damping, integrate one ``dt``."""
+        """Clamp ``tensions`` (m,) to [0, tmax], apply them and the cable damping, integrate one ``dt``.
+
+        The cables' forces ``(f_i + c·l̇_i) d_i`` at the points ``t + R b_i`` are applied as their sum at
+        the COM plus their moment about it, both in world coordinates: the same wrench as one
+        ``addExtForce(force_i, b_i, isForceLocal=False, isOffsetLocal=True)`` per cable, in two calls.
+        """
         commanded = np.asarray(tensions, dtype=float)
         if commanded.shape != (self.robot.m,):
             raise ValueError(f"expected {self.robot.m} tensions, got shape {commanded.shape}")
@@ -273,5 +283,11 @@ def _rotation(x: ArrayLike) -> Array:
         raise ValueError("rotation must be a finite 3×3 matrix")
     err = float(np.abs(R.T @ R - np.eye(3)).max())
     if err > _ORTHONORMAL_TOL or np.linalg.det(R) <= 0.0:
-        raise ValueError(f"rotation must be a proper rotation matrix (‖RᵀR − I‖ = {err:.3g}, det = {np.linalg.det(R):.3g})")
+        det = float(np.linalg.det(R))
+        raise ValueError(
+            f"rotation must be a proper rotation matrix (‖RᵀR − I‖ = {err:.3g}, det = {det:.3g})"
+        )
+    if err > 1e-14:  # hand DART the nearest rotation (polar decomposition), not an almost-rotation
+        U, _, Vt = np.linalg.svd(R)
+        R = U @ Vt
     return R

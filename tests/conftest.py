@@ -1,0 +1,73 @@
+"""Shared helpers for tests that run the real `cdpr` command and services as OS processes."""
+
+from __future__ import annotations
+
+import json
+import os
+import socket
+import subprocess
+import sys
+import time
+import uuid
+from collections.abc import Iterator
+from pathlib import Path
+
+import pytest
+
+CDPR = [sys.executable, "-m", "cdpr"]
+
+
+def free_port() -> int:
+    with socket.socket(socket.AF_INET, socket.SOCK_STREAM) as s:
+        s.bind(("127.0.0.1", 0))
+        return int(s.getsockname()[1])
+
+
+def last_json_line(stdout: str) -> dict:
+    lines = [ln for ln in stdout.strip().splitlines() if ln.strip()]
+    assert lines, "no output on stdout"
+    return json.loads(lines[-1])
+
+
+def cdpr(*args: str, timeout: float = 120.0, check: bool = False) -> subprocess.CompletedProcess[str]:
+    proc = subprocess.run([*CDPR, *args], capture_output=True, text=True, timeout=timeout, check=False)
+    if check and proc.returncode != 0:
+        raise AssertionError(f"cdpr {' '.join(args)} exited {proc.returncode}\n{proc.stderr[-3000:]}")
+    return proc
+
+
+def processes_mentioning(text: str) -> list[int]:
+    """PIDs of live processes whose command line contains ``text`` (zombies excluded)."""
+    found = []
+    for entry in Path("/proc").iterdir():
+        if not entry.name.isdigit() or int(entry.name) == os.getpid():
+            continue
+        try:
+            cmdline = (entry / "cmdline").read_bytes().replace(b"\0", b" ").decode(errors="replace")
+            status = (entry / "status").read_text()
+        except OSError:
+            continue
+        if text in cmdline and "State:\tZ" not in status:
+            found.append(int(entry.name))
+    return found
+
+
+def wait_no_processes(text: str, timeout: float = 5.0) -> list[int]:
+    deadline = time.monotonic() + timeout
+    while (left := processes_mentioning(text)) and time.monotonic() < deadline:
+        time.sleep(0.05)
+    return left
+
+
+@pytest.fixture
+def session_id() -> Iterator[str]:
+    """A unique session id; afterwards no process may still carry it."""
+    sid = f"t{uuid.uuid4().hex[:12]}"
+    yield sid
+    left = wait_no_processes(sid, timeout=10.0)
+    for pid in left:  # do not leak processes into later tests, but fail this one
+        try:
+            os.kill(pid, 9)
+        except OSError:
+            pass
+    assert not left, f"processes of session {sid} were left behind: {left}"

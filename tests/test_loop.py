@@ -1,0 +1,161 @@
+"""The distributed lock-step loop, end to end: real processes, real Zenoh on loopback, real DART."""
+
+from __future__ import annotations
+
+import math
+import re
+import signal
+import subprocess
+import sys
+import threading
+import time
+
+import msgpack
+import pytest
+import zenoh
+
+from cdpr.protocol import Command, Keys, Status
+from cdpr.transport import zenoh_config
+from conftest import CDPR, cdpr, free_port, last_json_line, processes_mentioning, wait_no_processes
+
+pytestmark = pytest.mark.slow
+
+
+def test_full_15kg_run_tracks_the_trajectory(session_id: str) -> None:
+    proc = cdpr("run", "caroca_15kg", "--session", session_id, "--quiet", timeout=300, check=True)
+    s = last_json_line(proc.stdout)
+    assert s["exit_ok"] is True
+    assert s["steps"] == s["total_steps"] == 11000
+    assert math.isclose(s["sim_time"], 11.0)
+    assert s["final_position_error"] < 1e-3
+    assert s["rms_position_error"] < 1e-3
+    assert 1.0 <= s["tension_min"] <= s["tension_max"] <= 6500.0
+    assert s["clamped_commands"] == 0
+    assert s["exit_codes"] == {"clock": 0, "sim": 0, "trajectory": 0, "controller": 0}
+    assert s["rate"] > 0 and s["rtf"] > 0
+
+
+def test_fast_runs_are_bit_identical(session_id: str) -> None:
+    digests = []
+    for i in range(2):
+        proc = cdpr("run", "caroca_15kg", "--duration", "0.5", "--session", f"{session_id}{i}", "--quiet", check=True)
+        s = last_json_line(proc.stdout)
+        assert s["steps"] == 500
+        digests.append(s["state_digest"])
+    assert digests[0] == digests[1]
+
+
+def test_remote_controller_joins_an_up_session(session_id: str) -> None:
+    port = free_port()
+    endpoint = f"tcp/127.0.0.1:{port}"
+    up = subprocess.Popen(
+        [*CDPR, "up", "caroca_15kg", "--duration", "0.5", "--session", session_id, "--without", "controller",
+         "--listen", endpoint, "--quiet", "--join-timeout", "60"],
+        stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+    )
+    try:
+        time.sleep(1.0)  # the session waits for its controller: nothing moves yet
+        assert up.poll() is None
+        ctrl = subprocess.run(
+            [*CDPR, "controller", "caroca_15kg", "--duration", "0.5", "--session", session_id,
+             "--zenoh-mode", "client", "--connect", endpoint],
+            capture_output=True, text=True, timeout=120,
+        )
+        out, err = up.communicate(timeout=60)
+    finally:
+        if up.poll() is None:
+            up.kill()
+    assert ctrl.returncode == 0, ctrl.stderr
+    s = last_json_line(out)
+    assert s["exit_ok"] is True, err
+    assert s["steps"] == 500
+    assert s["final_position_error"] < 1e-3
+    assert "controller" not in s["exit_codes"]
+
+
+def _garbage(m: int) -> list[bytes]:
+    """Bad commands of every kind the sim must survive."""
+    ok = Command(3, 0.003, tuple([10.0] * m)).encode()
+    pk = lambda d: msgpack.packb({"v": 1, **d})  # noqa: E731
+    return [
+        b"",
+        b"\xc1\xff\x00 not msgpack",
+        msgpack.packb([1, 2, 3]),
+        msgpack.packb({"v": 99, "step": 1, "t": 0.0, "tensions": [1.0] * m}),
+        pk({"step": "x", "t": 0.0, "tensions": [1.0] * m}),
+        pk({"step": 1, "t": 0.0, "tensions": [1.0] * (m - 1)}),
+        pk({"step": 1, "t": 0.0, "tensions": [float("nan")] * m}),
+        pk({"step": 1, "t": 0.0, "tensions": ["a"] * m}),
+        pk({"step": 10**9, "t": 0.0, "tensions": [1.0] * m}),
+        pk({"step": -4, "t": 0.0, "tensions": [1.0] * m}),
+        ok,
+    ]
+
+
+def test_bad_commands_do_not_stop_the_sim(session_id: str) -> None:
+    port = free_port()
+    endpoint = f"tcp/127.0.0.1:{port}"
+    up = subprocess.Popen(
+        [*CDPR, "up", "caroca_15kg", "--duration", "1.5", "--session", session_id, "--listen", endpoint, "--quiet"],
+        stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+    )
+    keys = Keys(session_id)
+    conf = zenoh_config("client", connect=[endpoint])
+    sent = 0
+    try:
+        with zenoh.open(conf) as z:
+            deadline = time.monotonic() + 20
+            running = False
+            status_sub = z.declare_subscriber(keys.status)
+            while time.monotonic() < deadline and up.poll() is None:
+                for payload in _garbage(8):
+                    z.put(keys.command, payload)
+                    sent += 1
+                sample = status_sub.try_recv()
+                if sample is not None and Status.decode(sample.payload.to_bytes()).state == "finished":
+                    break
+                running = running or sample is not None
+                time.sleep(0.01)
+        out, err = up.communicate(timeout=60)
+    finally:
+        if up.poll() is None:
+            up.kill()
+    assert sent > 50
+    s = last_json_line(out)
+    assert s["exit_ok"] is True, err
+    assert s["steps"] == 1500
+    assert "dropped a bad controller/command" in err
+    assert s["final_position_error"] < 1e-3
+
+
+@pytest.mark.parametrize("sig", [signal.SIGINT, signal.SIGTERM])
+def test_signal_stops_every_child(session_id: str, sig: int) -> None:
+    run = subprocess.Popen(
+        [*CDPR, "run", "caroca_15kg", "--session", session_id],
+        stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+    )
+    progress: list[str] = []
+    reader = threading.Thread(target=lambda: progress.extend(iter(run.stderr.readline, "")), daemon=True)
+    reader.start()
+    deadline = time.monotonic() + 60
+    while time.monotonic() < deadline and not any(re.search(r"step [1-9]\d*/", ln) for ln in progress):
+        time.sleep(0.05)
+    assert run.poll() is None, "".join(progress)
+    sent_at = time.monotonic()
+    run.send_signal(sig)
+    out = run.stdout.read()
+    run.wait(timeout=15)
+    assert time.monotonic() - sent_at < 5.0
+    assert run.returncode == 128 + sig
+    assert wait_no_processes(session_id, timeout=2.0) == []
+    s = last_json_line(out)
+    assert s["exit_ok"] is False
+    assert 0 < s["steps"] < s["total_steps"]
+
+
+def test_run_rejects_an_unknown_scenario() -> None:
+    proc = cdpr("run", "no_such_scenario")
+    assert proc.returncode == 2
+    lines = proc.stderr.strip().splitlines()
+    assert len(lines) == 1 and "no_such_scenario" in lines[0] and "Traceback" not in proc.stderr
+    assert sys.executable  # the test ran with the project's interpreter

@@ -1,0 +1,422 @@
+"""The sim's physics core on real DART: clamping, free fall, Newton–Euler, equilibrium, determinism.
+
+Independent references: the closed form of semi-implicit Euler under constant gravity,
+``cdpr.dynamics.forward_dynamics`` (Newton–Euler written in numpy, no DART), ``cdpr.kinematics``
+for cable lengths, rates and the wrench matrix, scipy's ``lsq_linear`` for equilibrium tensions, and
+the scalar planar equations m·a = F + m·g, I_yy·θ̈ = τ_y. Point-mass and planar test robots are
+built here, so these tests do not move when the shipped robot files change.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from functools import partial
+
+import numpy as np
+import pytest
+from cdpr.dynamics import forward_dynamics, gravity_wrench
+from cdpr.kinematics import cable_length_rates, inverse_kinematics
+from cdpr.robot import Robot, RobotSpec, load_robot, robot_from_spec, shipped_robots
+from cdpr.rotation import matrix_to_rotvec, quat_to_matrix, rotvec_to_matrix, rpy_to_matrix
+from cdpr_sim.core import PlatformSim, PlatformState, clamp_tensions
+from scipy.linalg import block_diag
+from scipy.optimize import lsq_linear
+
+G = 9.81
+DT = 1e-3
+# A full, non-diagonal, positive-definite inertia (kg·m²) for CAROCA: exercises every term of ω × Iω.
+FULL_INERTIA = np.array([[6.5, 0.8, -0.4], [0.8, 20.0, 0.6], [-0.4, 0.6, 22.5]])
+
+
+def _spec(**overrides: object) -> dict[str, object]:
+    base: dict[str, object] = {
+        "source": "tests/test_sim_core.py",
+        "limits": {"tmin": 5.0, "tmax": 100.0, "max_length": 7.0, "max_speed": 10.0},
+        "damping": {"cable": 1.0, "passive": 0.0},
+    }
+    base.update(overrides)
+    return base
+
+
+def point_mass_robot() -> Robot:
+    """Four cables from the top corners of a 4 m cube to the centre of a 1 kg sphere."""
+    corners = [[-2.0, -2.0, 4.0], [-2.0, 2.0, 4.0], [2.0, 2.0, 4.0], [2.0, -2.0, 4.0]]
+    spec = _spec(
+        name="test_point_mass",
+        mode="point_mass",
+        platform={"mass": 1.0, "inertia": [0.016, 0.02, 0.025], "shape": {"type": "sphere", "size": [0.2]}},
+        cables=[{"frame": a, "platform": [0.0, 0.0, 0.0]} for a in corners],
+        home={"position": [0.2, -0.1, 3.0]},
+        frame_box={"min": [-2.0, -2.0, 0.0], "max": [2.0, 2.0, 4.0]},
+    )
+    return robot_from_spec(RobotSpec.model_validate(spec), "test")
+
+
+def planar_robot() -> Robot:
+    """A 4-cable plate in the x–z plane: two cables from above, two from below, crossed lever arms."""
+    spec = _spec(
+        name="test_planar",
+        mode="planar",
+        # Ixy and Iyz are not zero: a planar joint must still give I_yy θ̈ = τ_y.
+        platform={
+            "mass": 4.0,
+            "inertia": [[0.06, 0.01, 0.0], [0.01, 0.1, 0.02], [0.0, 0.02, 0.05]],
+            "shape": {"type": "box", "size": [0.4, 0.05, 0.2]},
+        },
+        cables=[
+            {"frame": [-2.0, 0.0, 3.0], "platform": [-0.2, 0.0, 0.1]},
+            {"frame": [2.0, 0.0, 3.0], "platform": [0.2, 0.0, 0.1]},
+            {"frame": [-2.0, 0.0, 0.0], "platform": [-0.2, 0.0, -0.1]},
+            {"frame": [2.0, 0.0, 0.0], "platform": [0.2, 0.0, -0.1]},
+        ],
+        home={"position": [0.1, 0.0, 1.6]},
+        frame_box={"min": [-2.0, -0.1, 0.0], "max": [2.0, 0.1, 3.0]},
+    )
+    return robot_from_spec(RobotSpec.model_validate(spec), "test")
+
+
+def caroca_full_inertia() -> Robot:
+    return load_robot("caroca").replace(inertia=FULL_INERTIA)
+
+
+TEST_ROBOTS: dict[str, Callable[[], Robot]] = {
+    "caroca_full_inertia": caroca_full_inertia,
+    "point_mass": point_mass_robot,
+    "planar": planar_robot,
+}
+ROBOTS: dict[str, Callable[[], Robot]] = {
+    **TEST_ROBOTS,
+    **{name: partial(load_robot, name) for name in shipped_robots()},
+}
+
+
+def moving_state(robot: Robot, spinning: bool) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """A pose near home and a twist (zero, or translating and spinning), valid for the robot's mode."""
+    p = np.array(robot.home_position, dtype=float)
+    if robot.mode == "planar":
+        p += [0.05, 0.0, -0.03]
+        R = rotvec_to_matrix([0.0, 0.2, 0.0]) @ robot.home_rotation
+        twist = np.array([0.4, 0.0, -0.3, 0.0, 1.5, 0.0])
+    else:
+        p += [0.05, -0.04, 0.03]
+        R = rpy_to_matrix(0.1, -0.15, 0.2) @ robot.home_rotation
+        twist = np.array([0.4, -0.3, 0.2, 0.8, -1.5, 2.0])
+    return p, R, twist if spinning else np.zeros(6)
+
+
+def reference_acceleration(robot: Robot, R: np.ndarray, twist: np.ndarray, wrench: np.ndarray) -> np.ndarray:
+    """[a; α] of the platform, world frame, from Newton–Euler without DART, for each mode's joint."""
+    if robot.mode == "planar":
+        # The plane's own equations: the joint removes y, θ_x, θ_z, and ω ∥ y has no in-plane gyroscopic term.
+        Iyy = (R @ robot.inertia @ R.T)[1, 1]
+        return np.array([wrench[0] / robot.mass, 0.0, wrench[2] / robot.mass - G, 0.0, wrench[4] / Iyy, 0.0])
+    if robot.mode == "point_mass":
+        # The cables exert no moment: the sphere spins freely (Euler's equations) while its centre moves.
+        linear = forward_dynamics(robot, R, twist, wrench[:3])
+        Iw = R @ robot.inertia @ R.T
+        w = twist[3:]
+        return np.concatenate((linear, np.linalg.solve(Iw, -np.cross(w, Iw @ w))))
+    return np.asarray(forward_dynamics(robot, R, twist, wrench))
+
+
+def equilibrium_tensions(robot: Robot, position: np.ndarray, R: np.ndarray) -> np.ndarray:
+    """Tensions in [tmin, tmax] with W f = −w_g on the controlled rows (scipy, not the project's TDA)."""
+    rows = list(robot.controlled_rows)
+    W = inverse_kinematics(robot, position, R).wrench_matrix
+    wg = np.r_[gravity_wrench(robot), np.zeros(3)] if robot.mode == "point_mass" else gravity_wrench(robot)
+    sol = lsq_linear(W[rows], -wg[rows], bounds=(robot.tmin, robot.tmax), tol=1e-15, method="bvls")
+    f = np.asarray(sol.x)
+    assert np.abs(W @ f + wg).max() < 1e-9  # every row, including the uncontrolled ones (they vanish)
+    return f
+
+
+def angle_between(R1: np.ndarray, R2: np.ndarray) -> float:
+    return float(np.linalg.norm(matrix_to_rotvec(R1 @ R2.T)))
+
+
+# -- clamp_tensions ---------------------------------------------------------------------------------
+
+
+@pytest.mark.parametrize(
+    ("commanded", "applied", "low", "high"),
+    [
+        ([1.0, 50.0, 99.9], [1.0, 50.0, 99.9], 0, 0),
+        ([-3.0, 0.0, 100.0, 100.5, 1e9], [0.0, 0.0, 100.0, 100.0, 100.0], 1, 2),
+        ([-1e-12, -np.inf, np.inf], [0.0, 0.0, 100.0], 2, 1),
+        ([], [], 0, 0),
+    ],
+)
+def test_clamp_tensions(commanded: list[float], applied: list[float], low: int, high: int) -> None:
+    given = np.array(commanded, dtype=float)
+    before = given.copy()
+    out, n_low, n_high = clamp_tensions(given, 100.0)
+    assert out.tolist() == applied
+    assert (n_low, n_high) == (low, high)
+    assert type(n_low) is int
+    assert type(n_high) is int
+    np.testing.assert_array_equal(given, before)  # pure: the input is untouched
+
+
+def test_clamp_tensions_does_not_lift_to_tmin_and_rejects_nan() -> None:
+    out, low, high = clamp_tensions(np.array([0.5, 2.0]), 10.0)  # below a robot's tmin, still allowed
+    assert out.tolist() == [0.5, 2.0]
+    assert low == high == 0
+    with pytest.raises(ValueError, match="NaN"):
+        clamp_tensions(np.array([1.0, np.nan]), 10.0)
+
+
+# -- construction, reset, state -------------------------------------------------------------------
+
+
+@pytest.mark.parametrize("name", list(ROBOTS))
+def test_initial_state_round_trips_pose_and_twist(name: str) -> None:
+    robot = ROBOTS[name]()
+    p, R, twist = moving_state(robot, spinning=True)
+    sim = PlatformSim(robot, DT, p, R, twist)
+    s = sim.state()
+    assert (s.step, s.t, sim.step_count) == (0, 0.0, 0)
+    np.testing.assert_allclose(s.position, p, atol=1e-14)
+    np.testing.assert_allclose(s.rotation, R, atol=1e-14)
+    np.testing.assert_allclose(quat_to_matrix(s.quaternion), R, atol=1e-14)
+    assert s.quaternion[3] >= 0.0
+    assert abs(np.linalg.norm(s.quaternion) - 1.0) < 1e-15
+    np.testing.assert_allclose(s.twist, twist, atol=1e-14)  # world frame [v; ω], whatever the joint
+    np.testing.assert_array_equal(s.tensions, np.zeros(robot.m))
+    with pytest.raises(ValueError, match="read-only"):
+        s.position[0] = 1.0
+
+    sim.step(np.full(robot.m, robot.tmin))
+    sim.reset()  # back to home, at rest
+    s = sim.state()
+    assert (s.step, s.t) == (0, 0.0)
+    np.testing.assert_allclose(s.position, robot.home_position, atol=1e-14)
+    np.testing.assert_allclose(s.rotation, robot.home_rotation, atol=1e-14)
+    np.testing.assert_array_equal(s.twist, np.zeros(6))
+    np.testing.assert_array_equal(s.tensions, np.zeros(robot.m))
+
+
+def test_time_is_step_count_times_dt() -> None:
+    sim = PlatformSim(caroca_full_inertia(), dt=0.1)
+    for k in range(1, 8):
+        sim.step(np.full(8, 500.0))
+        assert sim.step_count == k
+        assert sim.t == k * 0.1
+        assert (sim.state().step, sim.state().t) == (k, k * 0.1)
+
+
+def test_bad_inputs_raise() -> None:
+    robot = caroca_full_inertia()
+    sim = PlatformSim(robot)
+    with pytest.raises(ValueError, match="expected 8 tensions"):
+        sim.step(np.ones(7))
+    with pytest.raises(ValueError, match="NaN"):
+        sim.step(np.r_[np.ones(7), np.nan])
+    with pytest.raises(ValueError, match="rotation"):
+        sim.reset(rotation=np.diag([1.0, 1.0, -1.0]))
+    with pytest.raises(ValueError, match="twist"):
+        sim.reset(twist=[0.0, 0.0, 0.0])
+    with pytest.raises(ValueError, match="dt"):
+        PlatformSim(robot, dt=0.0)
+    assert sim.step_count == 0  # nothing was integrated
+    planar = PlatformSim(planar_robot())
+    with pytest.raises(ValueError, match="planar"):
+        planar.reset(position=[0.0, 0.1, 1.5])
+    with pytest.raises(ValueError, match="planar"):
+        planar.reset(rotation=rpy_to_matrix(0.1, 0.0, 0.0))
+    with pytest.raises(ValueError, match="planar"):
+        planar.reset(twist=[0.0, 0.0, 0.0, 0.0, 0.0, 0.3])
+
+
+# -- free fall ------------------------------------------------------------------------------------
+
+
+def test_free_fall_is_semi_implicit_euler() -> None:
+    """Zero tensions, no damping: v_n = −g n dt and z_n = z_0 − g dt² n(n+1)/2.
+
+    So z_n − (z_0 − g t²/2) = −g t dt / 2 exactly: the semi-implicit Euler bound is g·t·dt/2 (4.9 mm
+    after 1 s at dt = 1 ms), and the closed form of the scheme holds to rounding.
+    """
+    robot = caroca_full_inertia().replace(cable_damping=0.0)
+    z0 = float(robot.home_position[2])
+    sim = PlatformSim(robot, DT)
+    n = 1000
+    for _ in range(n):
+        report = sim.step(np.zeros(robot.m))
+    s = sim.state()
+    t = n * DT
+    assert s.t == t
+    assert abs(s.twist[2] - (-G * t)) < 1e-11
+    assert abs(s.position[2] - (z0 - G * DT * DT * n * (n + 1) / 2)) < 1e-11
+    error = abs(s.position[2] - (z0 - G * t * t / 2))
+    assert error <= G * t * DT / 2 + 1e-11
+    assert error > 0.99 * G * t * DT / 2  # and it really is the integrator's error, not a smaller one
+    np.testing.assert_array_equal(s.position[:2], robot.home_position[:2])
+    np.testing.assert_array_equal(s.twist[[0, 1, 3, 4, 5]], np.zeros(5))
+    np.testing.assert_allclose(s.rotation, robot.home_rotation, atol=1e-15)
+    np.testing.assert_array_equal(report.applied, np.zeros(robot.m))
+    np.testing.assert_array_equal(report.damping, np.zeros(robot.m))
+
+
+# -- one step against Newton–Euler ----------------------------------------------------------------
+
+
+@pytest.mark.parametrize("spinning", [False, True], ids=["from_rest", "spinning"])
+@pytest.mark.parametrize("name", list(ROBOTS))
+def test_one_step_matches_newton_euler(name: str, spinning: bool) -> None:
+    robot = ROBOTS[name]()
+    p0, R0, v0 = moving_state(robot, spinning)
+    rng = np.random.default_rng(sum(map(ord, name)) + spinning)
+    f = rng.uniform(robot.tmin, robot.tmax, robot.m)
+    sim = PlatformSim(robot, DT, p0, R0, v0)
+    report = sim.step(f)
+    s1 = sim.state()
+
+    kin = inverse_kinematics(robot, p0, R0)
+    rates = cable_length_rates(kin, v0)
+    np.testing.assert_array_equal(report.applied, f)
+    assert (report.clamped_low, report.clamped_high) == (0, 0)
+    np.testing.assert_allclose(report.damping, robot.cable_damping * rates, rtol=1e-12, atol=1e-12)
+    assert np.all(report.damping * rates >= 0.0)  # the damping opposes each cable's length rate
+    np.testing.assert_array_equal(s1.tensions, f)
+
+    expected = reference_acceleration(robot, R0, v0, kin.wrench_matrix @ (f + report.damping))
+    measured = (s1.twist - v0) / DT
+    assert np.linalg.norm(measured - expected) <= 1e-6 * np.linalg.norm(expected)
+    # Semi-implicit Euler: the pose moves with the new twist.
+    np.testing.assert_allclose(s1.position, p0 + DT * s1.twist[:3], rtol=0, atol=1e-14)
+    # R₁ = exp(dt [ω₁]×) R₀; for small angles DART evaluates exp by its Taylor series to second order,
+    # whose error is below θ³/6 (θ = dt‖ω₁‖).
+    theta = DT * float(np.linalg.norm(s1.twist[3:]))
+    R_expected = rotvec_to_matrix(DT * s1.twist[3:]) @ R0
+    assert np.abs(s1.rotation - R_expected).max() <= theta**3 / 6 + 1e-14
+
+    if spinning and robot.mode == "spatial":
+        # The comparison is sharp enough to see the gyroscopic term and the damping.
+        no_gyro = np.linalg.solve(
+            block_diag(robot.mass * np.eye(3), R0 @ robot.inertia @ R0.T),
+            kin.wrench_matrix @ (f + report.damping) + gravity_wrench(robot),
+        )
+        assert np.linalg.norm(no_gyro - expected) > 1e-3 * np.linalg.norm(expected)
+        no_damping = reference_acceleration(robot, R0, v0, kin.wrench_matrix @ f)
+        assert np.linalg.norm(no_damping - expected) > 1e-5 * np.linalg.norm(expected)
+
+
+def test_clamped_tensions_are_the_ones_applied() -> None:
+    robot = caroca_full_inertia().replace(cable_damping=0.0)
+    commanded = np.array([-20.0, 300.0, 2e4, 400.0, 0.0, -1.0, 15000.0, 600.0])
+    sim = PlatformSim(robot)
+    report = sim.step(commanded)
+    applied = np.array([0.0, 300.0, robot.tmax, 400.0, 0.0, 0.0, robot.tmax, 600.0])
+    np.testing.assert_array_equal(report.applied, applied)
+    assert (report.clamped_low, report.clamped_high) == (2, 2)
+    np.testing.assert_array_equal(sim.state().tensions, applied)
+    kin = inverse_kinematics(robot, robot.home_position, robot.home_rotation)
+    expected = forward_dynamics(robot, robot.home_rotation, np.zeros(6), kin.wrench_matrix @ applied)
+    assert np.linalg.norm(sim.state().twist / DT - expected) <= 1e-6 * np.linalg.norm(expected)
+
+
+# -- equilibrium ----------------------------------------------------------------------------------
+
+
+@pytest.mark.parametrize("name", list(TEST_ROBOTS))
+def test_static_equilibrium_holds_still(name: str) -> None:
+    """Tensions with W f + w_g = 0 (residual < 1e-9 N) keep the platform at rest for 1 s.
+
+    The bound: a residual force r moves the platform by r t²/(2m) in time t; fixed tensions make the
+    pose's equilibrium mildly unstable (geometric stiffness; growth rate λ ≲ 2 /s here, so at most a
+    factor cosh(λ t) ≈ 4 after 1 s). From r < 1e-9 N and m ≥ 1 kg that is below 1e-8 m. A force or
+    lever-arm error of δ in the applied wrench would instead drift δ/(2m) m, i.e. 1e-6 m as soon as
+    δ ≈ 2e-6·m N (3e-4 N on CAROCA's ~1500 N of tension). So 1e-6 m and 1e-6 rad.
+    """
+    robot = TEST_ROBOTS[name]()
+    p0 = robot.home_position + ([0.1, 0.0, -0.05] if robot.mode == "planar" else [0.1, -0.08, -0.05])
+    tilt = [0.0, 0.04, 0.0] if robot.mode == "planar" else [0.05, -0.08, 0.1]
+    R0 = rotvec_to_matrix(tilt) @ robot.home_rotation
+    f = equilibrium_tensions(robot, p0, R0)
+    sim = PlatformSim(robot, DT, p0, R0)
+    for _ in range(1000):
+        sim.step(f)
+    s = sim.state()
+    assert np.linalg.norm(s.position - p0) < 1e-6
+    assert angle_between(s.rotation, R0) < 1e-6
+    assert np.abs(s.twist).max() < 1e-6
+    # After a second at rest the body still responds at once (DART never put it to sleep).
+    f2 = f * 1.01
+    sim.step(f2)
+    kin = inverse_kinematics(robot, s.position, s.rotation)
+    expected = reference_acceleration(robot, s.rotation, s.twist, kin.wrench_matrix @ f2)
+    measured = (sim.state().twist - s.twist) / DT
+    assert np.linalg.norm(measured - expected) <= 1e-6 * np.linalg.norm(expected)
+
+
+# -- kinematics of the state ----------------------------------------------------------------------
+
+
+@pytest.mark.parametrize("name", list(ROBOTS))
+def test_state_cable_lengths_and_rates_match_kinematics(name: str) -> None:
+    robot = ROBOTS[name]()
+    p0, R0, v0 = moving_state(robot, spinning=True)
+    sim = PlatformSim(robot, DT, p0, R0, v0)
+    rng = np.random.default_rng(7)
+    for k in range(60):
+        s = sim.state() if k % 20 == 0 else None
+        if s is not None:
+            kin = inverse_kinematics(robot, s.position, s.rotation)
+            np.testing.assert_allclose(s.cable_lengths, kin.lengths, rtol=1e-13)
+            np.testing.assert_allclose(s.cable_rates, kin.jacobian @ s.twist, rtol=1e-12, atol=1e-12)
+        sim.step(rng.uniform(robot.tmin, robot.tmax, robot.m))
+
+
+# -- modes ----------------------------------------------------------------------------------------
+
+
+def test_point_mass_never_turns_and_planar_stays_in_plane() -> None:
+    rng = np.random.default_rng(3)
+    pm = point_mass_robot()
+    sim = PlatformSim(pm, DT)
+    for _ in range(300):
+        sim.step(rng.uniform(0.0, pm.tmax, pm.m))
+    s = sim.state()
+    np.testing.assert_array_equal(s.rotation, pm.home_rotation)  # no cable moment, no spin: exactly
+    np.testing.assert_array_equal(s.twist[3:], np.zeros(3))
+
+    pl = planar_robot()
+    p0, R0, v0 = moving_state(pl, spinning=True)
+    sim = PlatformSim(pl, DT, p0, R0, v0)
+    for _ in range(300):
+        sim.step(rng.uniform(0.0, pl.tmax, pl.m))
+    s = sim.state()
+    assert s.position[1] == 0.0
+    np.testing.assert_array_equal(s.twist[[1, 3, 5]], np.zeros(3))  # no v_y, ω_x, ω_z
+    np.testing.assert_array_equal(s.rotation[1], [0.0, 1.0, 0.0])  # a rotation about y only
+    np.testing.assert_array_equal(s.rotation[:, 1], [0.0, 1.0, 0.0])
+    np.testing.assert_array_equal(s.quaternion[[0, 2]], [0.0, 0.0])
+
+
+# -- determinism ----------------------------------------------------------------------------------
+
+
+def _assert_same(a: PlatformState, b: PlatformState) -> None:
+    for field in ("position", "quaternion", "rotation", "twist", "cable_lengths", "cable_rates", "tensions"):
+        assert np.array_equal(getattr(a, field), getattr(b, field)), field
+    assert (a.step, a.t) == (b.step, b.t)
+
+
+def test_same_tensions_give_bit_identical_states() -> None:
+    robot = caroca_full_inertia()
+    p0, R0, v0 = moving_state(robot, spinning=True)
+    commands = np.random.default_rng(11).uniform(-100.0, 1.2 * robot.tmax, (400, robot.m))  # some clamp
+    sims = [PlatformSim(robot, DT, p0, R0, v0), PlatformSim(robot, DT, p0, R0, v0)]
+    replay = PlatformSim(robot, DT)
+    for k, f in enumerate(commands):
+        reports = [sim.step(f.copy()) for sim in sims]
+        for field in ("applied", "damping"):
+            assert np.array_equal(getattr(reports[0], field), getattr(reports[1], field))
+        if k % 7 == 0:  # reading the state between steps must not change the trajectory
+            sims[0].state()
+    _assert_same(sims[0].state(), sims[1].state())
+    assert sims[0].state().step == len(commands)
+    replay.reset(p0, R0, v0)  # a reset sim replays the same run
+    for f in commands:
+        replay.step(f)
+    _assert_same(replay.state(), sims[1].state())
