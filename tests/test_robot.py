@@ -178,7 +178,9 @@ def test_every_given_key_is_kept() -> None:
     assert static_tensions(robot, robot.home_position, robot.home_rotation) is not None
 
 
-@pytest.mark.parametrize(("file", "mode"), [("triangle_planar", "planar"), ("tripod_point_mass", "point_mass")])
+@pytest.mark.parametrize(
+    ("file", "mode"), [("triangle_planar", "planar"), ("tripod_point_mass", "point_mass")]
+)
 def test_the_fewest_cables_a_mode_allows_load(file: str, mode: str) -> None:
     robot = load_robot(VALID / f"{file}.yaml")
     assert (robot.mode, robot.dof, robot.m) == (mode, 3, 3)
