@@ -75,32 +75,19 @@ def _pose(values: tuple[float, ...]) -> tuple[np.ndarray, np.ndarray]:
     return np.array(values[:3]), rpy_to_matrix(*rpy)
 
 
-def _pose_args(f: Callable[..., Any]) -> Callable[..., Any]:
-    return click.option(
-        "--pose", "pose", type=float, multiple=True, required=True, help="X Y Z [ROLL PITCH YAW] (m, rad)"
-    )(f)
-
-
-class _Floats(click.ParamType):
-    name = "numbers"
-
-
-def _collect_pose(ctx: click.Context, pose: tuple[float, ...]) -> tuple[float, ...]:
-    extra = tuple(float(x) for x in ctx.args)
-    return pose + extra
-
-
 @cli.command(context_settings={"ignore_unknown_options": True, "allow_extra_args": True})
 @click.argument("robot")
-@click.option("--pose", type=float, required=True, help="X Y Z [ROLL PITCH YAW]: the numbers follow --pose")
 @click.pass_context
-def ik(ctx: click.Context, robot: str, pose: float) -> None:
+def ik(ctx: click.Context, robot: str) -> None:
     """Inverse kinematics of ROBOT at --pose X Y Z [ROLL PITCH YAW]."""
     from cdpr.kinematics import inverse_kinematics
     from cdpr.robot import load_robot
 
+    groups = _split_numbers(list(ctx.args), ("--pose",))
+    if "--pose" not in groups:
+        raise InputError("--pose X Y Z [ROLL PITCH YAW] is required")
     r = load_robot(robot)
-    position, R = _pose(_numbers("--pose", (pose, *ctx.args)))
+    position, R = _pose(_numbers("--pose", tuple(groups["--pose"])))
     k = inverse_kinematics(r, position, R)
     _emit({"lengths": k.lengths.tolist(), "directions": k.directions.tolist(), "wrench_matrix": k.wrench_matrix.tolist()})
 

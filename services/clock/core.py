@@ -1,7 +1,7 @@
 """The clock's logic, free of I/O: which tick may go out now, and the statistics.
 
-Step k is *complete* when the sim has published its state k+1. Tick k may be issued once the sim has
-reached step k − ``lookahead`` (state k − lookahead received), so with the default lookahead of 1 the
+Step k is *complete* when the sim has published its state k+1. Tick k (k > 0; tick 0 starts the run) may be
+issued once the sim has reached step k − ``lookahead`` (state k − lookahead received), so with the default lookahead of 1 the
 trajectory prepares setpoint k+1 while the controller and the sim work on step k; the sim still never
 integrates step k before tick k. In ``realtime`` mode tick k also waits for its wall-clock deadline
 t₀ + k·dt, and a tick issued more than dt after its deadline is counted late. While paused, nothing is
@@ -44,7 +44,7 @@ class ClockCore:
     def next_tick(self, now: float) -> int | None:
         """The tick to issue now, if any (call repeatedly until None)."""
         k = self.issued + 1
-        if self.paused or k >= self.total_steps or self.reached < k - self.lookahead:
+        if self.paused or k >= self.total_steps or (k > 0 and self.reached < k - self.lookahead):
             return None
         if self.realtime and self.started_at is not None and now < self.deadline(k):
             return None
@@ -73,7 +73,7 @@ class ClockCore:
     def wait_time(self, now: float) -> float | None:
         """Seconds until the next realtime deadline, if a tick is only waiting for the wall clock."""
         k = self.issued + 1
-        if not self.realtime or self.paused or k >= self.total_steps or self.reached < k - self.lookahead:
+        if not self.realtime or self.paused or k >= self.total_steps or (k > 0 and self.reached < k - self.lookahead):
             return None
         if self.started_at is None:
             return 0.0
