@@ -14,7 +14,7 @@ import numpy as np
 from numpy.typing import ArrayLike
 
 from cdpr.robot import GRAVITY
-from cdpr.rotation import Array
+from cdpr.rotation import Array, cross3
 
 if TYPE_CHECKING:
     from cdpr.robot import Robot
@@ -40,7 +40,9 @@ def coriolis_wrench(robot: Robot, R: ArrayLike, twist: ArrayLike) -> Array:
     if robot.mode == "point_mass":
         return np.zeros(3)
     w = np.asarray(twist, dtype=float)[3:6]
-    return np.r_[0.0, 0.0, 0.0, np.cross(w, world_inertia(robot, R) @ w)]
+    out = np.zeros(6)
+    out[3:] = cross3(w, world_inertia(robot, R) @ w)
+    return out
 
 
 def gravity_wrench(robot: Robot) -> Array:

@@ -21,7 +21,7 @@ import numpy as np
 from numpy.typing import ArrayLike
 from scipy.optimize import least_squares
 
-from cdpr.rotation import Array, rotvec_to_matrix
+from cdpr.rotation import Array, cross_rows, rotvec_to_matrix
 
 if TYPE_CHECKING:
     from cdpr.robot import Robot
@@ -51,7 +51,7 @@ def cable_kinematics(frame_points: Array, platform_points: Array, position: Arra
         d = vectors / lengths[:, None]
     W = np.empty((6, len(lengths)))
     W[:3] = d.T
-    W[3:] = np.cross(Rb, d).T
+    W[3:] = cross_rows(Rb, d).T
     return CableKinematics(vectors, lengths, d, t + Rb, W)
 
 
