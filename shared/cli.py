@@ -322,6 +322,61 @@ def up(**kw: Any) -> None:
     sys.exit(run_session(_load(kw.pop("scenario"), kw.pop("duration")), **kw))
 
 
+# ------------------------------------------------------------------------------------------------
+# Recordings (Rerun): replay, show, report
+
+
+@cli.command()
+@click.argument("file", type=click.Path())
+@click.option("--web", is_flag=True, help="serve the web viewer instead of opening the native one")
+@click.option("--port", type=click.IntRange(0, 65535), default=0, show_default=True,
+              help="web viewer HTTP port with --web (0: a free one)")
+def replay(file: str, web: bool, port: int) -> None:
+    """Open the recording FILE.rrd in the Rerun viewer (with --web: serve it and print the URL)."""
+    import subprocess
+    from pathlib import Path
+
+    from cdpr.launch import free_port
+    from cdpr.recording import viewer_command, web_viewer_url
+
+    if not Path(file).is_file():
+        raise InputError(f"{file}: no such file")
+    web_port, grpc_port = (port or free_port(), free_port()) if web else (0, 0)
+    proc = subprocess.Popen(viewer_command(file, web=web, web_port=web_port, grpc_port=grpc_port))
+    if web:
+        _emit({"url": web_viewer_url(web_port, grpc_port), "file": file})
+        click.echo("serving the web viewer; Ctrl-C to stop", err=True)
+    try:
+        code = proc.wait()
+    except KeyboardInterrupt:
+        proc.terminate()
+        code = proc.wait()
+    sys.exit(code if code >= 0 else 128 - code)
+
+
+@cli.command()
+@click.argument("robot")
+@click.option("--rrd", type=click.Path(), default=None, help="write to this .rrd file (default: spawn a viewer)")
+@click.option("--connect-viewer", default=None, help="stream to the Rerun viewer at this gRPC URL")
+def show(robot: str, rrd: str | None, connect_viewer: str | None) -> None:
+    """Draw ROBOT (a name or a YAML path) at its home pose: frame, numbered anchors, platform, cables."""
+    from cdpr.recording import show_robot
+    from cdpr.robot import load_robot
+
+    _emit(show_robot(load_robot(robot), rrd=rrd, viewer=connect_viewer))
+
+
+@cli.command()
+@click.argument("file", type=click.Path())
+@click.option("-o", "--out", "out_dir", type=click.Path(), default=None,
+              help="output directory (default: FILE's name + _report, beside it)")
+def report(file: str, out_dir: str | None) -> None:
+    """Plot the recording FILE.rrd in the paper's four-panel layout and write summary.json."""
+    from cdpr.report import write_report
+
+    _emit(write_report(file, out_dir))
+
+
 def main(argv: list[str] | None = None) -> None:
     try:
         cli.main(args=argv, prog_name="cdpr", standalone_mode=True)

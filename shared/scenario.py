@@ -69,6 +69,14 @@ class ControllerSpec(_Strict):
         return v
 
 
+class SimSpec(_Strict):
+    cable_model: Literal["ideal", "ups"] = Field(
+        "ideal",
+        description="ideal: massless inextensible pull-only force elements; ups: the seed paper's "
+        "universal-prismatic-spherical legs closed with ball-joint constraints",
+    )
+
+
 class InitialSpec(_Strict):
     position: list[FiniteFloat] = Field(min_length=3, max_length=3)
     rpy: list[FiniteFloat] = Field(default_factory=lambda: [0.0, 0.0, 0.0], min_length=3, max_length=3)
@@ -85,6 +93,7 @@ class ScenarioSpec(_Strict):
     initial: InitialSpec | None = Field(None, description="default: the trajectory's first pose, at rest")
     trajectory: TrajectorySpec
     controller: ControllerSpec = Field(default_factory=ControllerSpec)
+    sim: SimSpec = Field(default_factory=SimSpec)
 
     @model_validator(mode="after")
     def _dt_sane(self) -> ScenarioSpec:
@@ -108,6 +117,7 @@ class Scenario:
     gains: Gains
     tda_method: str
     tda_options: dict[str, Any]
+    cable_model: str
     spec: ScenarioSpec
 
     @property
@@ -122,6 +132,7 @@ class Scenario:
             "duration": self.duration,
             "total_steps": self.total_steps,
             "robot": self.robot.summary(),
+            "sim": {"cable_model": self.cable_model},
             "controller": {
                 "variant": self.variant,
                 "kp": self.gains.kp.tolist(),
@@ -175,6 +186,7 @@ def scenario_from_spec(spec: ScenarioSpec, where: str, base_dir: Path | None = N
         gains=Gains.of(spec.controller.kp, spec.controller.kd),
         tda_method=spec.controller.tda.method,
         tda_options=dict(spec.controller.tda.options),
+        cable_model=spec.sim.cable_model,
         spec=spec,
     )
 

@@ -150,8 +150,9 @@ class RecorderNode(Node):
             k, t = s.step[applied], s.t[applied]
             for i in range(self.m):
                 R.send_scalars(rec, R.tension_series(i), k, t, s.tensions[applied, i])
-            R.send_scalars(rec, R.TENSION_MIN, k, t, np.full(len(k), robot.tmin))
-            R.send_scalars(rec, R.TENSION_MAX, k, t, np.full(len(k), robot.tmax))
+            ends = [0, len(k) - 1] if len(k) > 1 else list(range(len(k)))  # a straight line: two points a batch
+            R.send_scalars(rec, R.TENSION_MIN, k[ends], t[ends], np.full(len(ends), robot.tmin))
+            R.send_scalars(rec, R.TENSION_MAX, k[ends], t[ends], np.full(len(ends), robot.tmax))
             sc = s.scene
             R.send_poses(rec, R.PLATFORM, s.step[sc], s.t[sc], s.pose[sc])
             R.send_cables(rec, robot, s.step[sc], s.t[sc], s.pose[sc], s.tensions[sc])

@@ -32,6 +32,15 @@ def state_message(s: PlatformState, clamped: int) -> State:
     )
 
 
+def make_sim(scenario: Scenario) -> PlatformSim:
+    """The physics of the scenario's cable model (every model has PlatformSim's interface)."""
+    if scenario.cable_model == "ups":
+        from cdpr_sim.ups import UpsSim
+
+        return UpsSim(scenario.robot, scenario.dt, scenario.initial_position, scenario.initial_rotation)
+    return PlatformSim(scenario.robot, scenario.dt, scenario.initial_position, scenario.initial_rotation)
+
+
 class SimNode(Node):
     name = "sim"
 
@@ -39,7 +48,7 @@ class SimNode(Node):
         super().__init__(keys)
         self.scenario = scenario
         self.total_steps = scenario.total_steps
-        self.sim = PlatformSim(scenario.robot, scenario.dt, scenario.initial_position, scenario.initial_rotation)
+        self.sim = make_sim(scenario)
         self.m = scenario.robot.m
         self.allowed = -1  # highest tick received
         self.seen_ticks: set[int] = set()  # ticks received for steps not yet taken (a repeat asks for a resend)
