@@ -88,6 +88,7 @@ _PATH_COLOR = (220, 50, 47, 255)
 _PLANNED_COLOR = (255, 165, 0, 160)
 _ANCHOR_COLOR = (30, 30, 30, 255)
 _CABLE_RADIUS = 0.01
+DEFAULT_VIEWER_URL = "rerun+http://127.0.0.1:9876/proxy"  # where `rerun` (and a spawned viewer) listens
 
 
 def tension_series(i: int) -> str:
@@ -160,43 +161,75 @@ def anchor_labels(points: ArrayLike) -> tuple[NDArray[np.float64], list[str]]:
 # Sinks, blueprint, static scene
 
 
-def open_stream(
-    rec_id: str,
-    rrd: str | Path | None = None,
-    spawn: bool = False,
-    viewer: str | None = None,
-    blueprint: rrb.Blueprint | None = None,
-) -> rr.RecordingStream:
-    """A recording stream (app id ``cdpr``) writing to an .rrd file and/or streaming to viewers.
+class Recording:
+    """One recording (app id ``cdpr``, one recording id) written to an .rrd file and/or streamed to viewers.
 
-    ``spawn`` starts a native viewer (listening on the default port) and streams to it; ``viewer`` is a
-    gRPC URL such as ``rerun+http://127.0.0.1:9876/proxy``. At least one sink is required.
+    The file and the viewers get separate :class:`rerun.RecordingStream` objects of the same recording,
+    so a viewer that is slow or unreachable can never hold up, or cost, the file: :meth:`close` finishes
+    the file first. Columns are built once and sent to every stream.
+    ``spawn`` starts a native viewer (default port) and streams to it; ``viewer`` is a gRPC URL such as
+    ``rerun+http://127.0.0.1:9876/proxy``. At least one sink is required.
     """
-    rec = rr.RecordingStream(APP_ID, recording_id=rec_id)
-    sinks: list[Any] = []
-    if rrd is not None:
-        path = Path(rrd)
-        try:
-            path.parent.mkdir(parents=True, exist_ok=True)
-            path.touch()
-        except OSError as exc:
-            raise InputError(f"--rrd: cannot write {path}: {exc.strerror or exc}") from None
-        sinks.append(rr.FileSink(str(path)))
-    urls: list[str] = []
-    if spawn:
-        rr.spawn(connect=False, recording=rec)
-        urls.append("rerun+http://127.0.0.1:9876/proxy")
-    if viewer and viewer not in urls:
-        urls.append(viewer)
-    for url in urls:
-        try:
-            sinks.append(rr.GrpcSink(url))
-        except Exception as exc:  # the SDK raises on a malformed URL
-            raise InputError(f"--connect-viewer: {url!r}: {str(exc).splitlines()[0]}") from None
-    if not sinks:
-        raise ValueError("a recording needs at least one sink: an .rrd path, spawn or a viewer URL")
-    rec.set_sinks(*sinks, default_blueprint=blueprint)
-    return rec
+
+    def __init__(
+        self,
+        rec_id: str,
+        rrd: str | Path | None = None,
+        spawn: bool = False,
+        viewer: str | None = None,
+        blueprint: rrb.Blueprint | None = None,
+    ) -> None:
+        self.recording_id = rec_id
+        self.streams: list[rr.RecordingStream] = []  # the file's first
+        if rrd is not None:
+            path = Path(rrd)
+            try:
+                path.parent.mkdir(parents=True, exist_ok=True)
+                path.touch()
+            except OSError as exc:
+                raise InputError(f"--rrd: cannot write {path}: {exc.strerror or exc}") from None
+            stream = rr.RecordingStream(APP_ID, recording_id=rec_id)
+            stream.set_sinks(rr.FileSink(str(path)), default_blueprint=blueprint)
+            self.streams.append(stream)
+        urls: list[str] = []
+        live = rr.RecordingStream(APP_ID, recording_id=rec_id) if spawn or viewer else None
+        if spawn:
+            rr.spawn(connect=False, recording=live)
+            urls.append(DEFAULT_VIEWER_URL)
+        if viewer and viewer not in urls:
+            urls.append(viewer)
+        if live is not None:
+            try:
+                live.set_sinks(*(rr.GrpcSink(url) for url in urls), default_blueprint=blueprint)
+            except Exception as exc:  # the SDK raises on a malformed URL
+                raise InputError(f"--connect-viewer: {viewer!r}: {str(exc).splitlines()[0]}") from None
+            self.streams.append(live)
+        if not self.streams:
+            raise ValueError("a recording needs at least one sink: an .rrd path, spawn or a viewer URL")
+
+    def log(self, path: str, *entity: Any, static: bool = False) -> None:
+        for stream in self.streams:
+            stream.log(path, *entity, static=static)
+
+    def send_columns(self, path: str, indexes: Sequence[rr.TimeColumn], columns: Any) -> None:
+        for stream in self.streams:
+            stream.send_columns(path, indexes=indexes, columns=columns)
+
+    def send_recording_name(self, name: str) -> None:
+        for stream in self.streams:
+            stream.send_recording_name(name)
+
+    def close(self, viewer_timeout: float = 1.0) -> list[str]:
+        """Flush and close every sink, the file first; returns the problems met (e.g. a lost viewer)."""
+        problems = []
+        for i, stream in enumerate(self.streams):
+            try:
+                stream.flush(timeout_sec=viewer_timeout if i or len(self.streams) == 1 and not self._file else 1e9)
+            except Exception as exc:  # the SDK raises RuntimeError when a gRPC sink cannot be reached
+                problems.append(str(exc).splitlines()[0] if str(exc) else type(exc).__name__)
+            stream.disconnect()
+        self.streams = []
+        return problems
 
 
 def blueprint() -> rrb.Blueprint:
@@ -246,7 +279,7 @@ def _shape(robot: Robot, color: tuple[int, int, int, int]) -> Any:
     return rr.Cylinders3D(lengths=[h], radii=[r], colors=[color], fill_mode=solid)
 
 
-def log_scene(rec: rr.RecordingStream, robot: Robot, ghost: bool = True) -> None:
+def log_scene(rec: Recording, robot: Robot, ghost: bool = True) -> None:
     """Static parts of the 3D scene: frame box, frame anchors, platform shape and anchors, ghost."""
     rec.log(WORLD, rr.ViewCoordinates.RIGHT_HAND_Z_UP, static=True)
     lo, hi = np.asarray(robot.frame_min), np.asarray(robot.frame_max)
@@ -266,17 +299,17 @@ def log_scene(rec: rr.RecordingStream, robot: Robot, ghost: bool = True) -> None
         rec.log(PATH, rr.LineStrips3D.from_fields(radii=[0.008], colors=[_PATH_COLOR]), static=True)
 
 
-def log_planned_path(rec: rr.RecordingStream, points: ArrayLike) -> None:
+def log_planned_path(rec: Recording, points: ArrayLike) -> None:
     rec.log(PLANNED_PATH, rr.LineStrips3D([np.asarray(points, dtype=float)], radii=0.006, colors=[_PLANNED_COLOR]),
             static=True)
 
 
-def log_session(rec: rr.RecordingStream, info: Mapping[str, Any]) -> None:
+def log_session(rec: Recording, info: Mapping[str, Any]) -> None:
     """Static JSON description of the session (what ``cdpr report`` needs: dt, cables, limits...)."""
     rec.log(SESSION, rr.TextDocument(json.dumps(dict(info), indent=2), media_type=rr.MediaType.TEXT), static=True)
 
 
-def log_series_styles(rec: rr.RecordingStream, m: int) -> None:
+def log_series_styles(rec: Recording, m: int) -> None:
     """Static names and colours of the time series."""
     xyz = rr.SeriesLines(names=list(AXES), colors=list(AXIS_COLORS))
     for path in (DESIRED_POSITION, ACTUAL_POSITION, POSITION_ERROR_AXES, ORIENTATION_ERROR_AXES):
@@ -312,7 +345,7 @@ def time_columns(steps: ArrayLike, times: ArrayLike) -> list[rr.TimeColumn]:
     ]
 
 
-def send_scalars(rec: rr.RecordingStream, path: str, steps: ArrayLike, times: ArrayLike, values: ArrayLike) -> None:
+def send_scalars(rec: Recording, path: str, steps: ArrayLike, times: ArrayLike, values: ArrayLike) -> None:
     """Rows of scalars: ``values`` (n,) gives one series, (n, k) gives k series on one entity."""
     v = np.asarray(values, dtype=float)
     n = v.shape[0]
@@ -324,7 +357,7 @@ def send_scalars(rec: rr.RecordingStream, path: str, steps: ArrayLike, times: Ar
     rec.send_columns(path, indexes=time_columns(steps, times), columns=cols)
 
 
-def send_text(rec: rr.RecordingStream, path: str, steps: Sequence[int], times: Sequence[float], texts: Sequence[str],
+def send_text(rec: Recording, path: str, steps: Sequence[int], times: Sequence[float], texts: Sequence[str],
               level: str = "INFO") -> None:
     if not texts:
         return
@@ -332,7 +365,7 @@ def send_text(rec: rr.RecordingStream, path: str, steps: Sequence[int], times: S
                      columns=rr.TextLog.columns(text=list(texts), level=[level] * len(texts)))
 
 
-def send_poses(rec: rr.RecordingStream, path: str, steps: ArrayLike, times: ArrayLike, poses: ArrayLike) -> None:
+def send_poses(rec: Recording, path: str, steps: ArrayLike, times: ArrayLike, poses: ArrayLike) -> None:
     """Transform3D rows from poses (n, 7) [x, y, z, qx, qy, qz, qw]."""
     p = np.asarray(poses, dtype=float).reshape(-1, 7)
     if p.shape[0] == 0:
@@ -341,7 +374,7 @@ def send_poses(rec: rr.RecordingStream, path: str, steps: ArrayLike, times: Arra
                      columns=rr.Transform3D.columns(translation=p[:, :3], quaternion=p[:, 3:]))
 
 
-def send_cables(rec: rr.RecordingStream, robot: Robot, steps: ArrayLike, times: ArrayLike, poses: ArrayLike,
+def send_cables(rec: Recording, robot: Robot, steps: ArrayLike, times: ArrayLike, poses: ArrayLike,
                 tensions: ArrayLike) -> None:
     """Cable line strips for n poses (n, 7), coloured by the tensions (n, m) on the tmin..tmax scale."""
     p = np.asarray(poses, dtype=float).reshape(-1, 7)
@@ -354,7 +387,7 @@ def send_cables(rec: rr.RecordingStream, robot: Robot, steps: ArrayLike, times: 
     rec.send_columns(CABLES, indexes=time_columns(steps, times), columns=cols)
 
 
-def send_path(rec: rr.RecordingStream, steps: Sequence[int], times: Sequence[float],
+def send_path(rec: Recording, steps: Sequence[int], times: Sequence[float],
               paths: Sequence[NDArray[np.float64]]) -> None:
     """The travelled path: row j is the whole path so far, a (k_j, 3) line strip."""
     if not paths:

@@ -49,6 +49,7 @@ class ClockNode(Node):
         self.reason = ""
         self.finished_at: float | None = None
         self.bad_states = 0
+        self.lost: set[str] = set()  # participants that left after tick 0
         self.warn = RateLimitedLog(self.name)
         self._tick: zenoh.Publisher | None = None
         self._status: zenoh.Publisher | None = None
@@ -98,7 +99,14 @@ class ClockNode(Node):
             self.present.discard(service)
             if service in self.expected and self.finished_at is None:
                 log(self.name, f"{service} left the session at step {self.core.reached}")
+                if self.core.started_at is not None:
+                    self.lost.add(service)
         if self.finished_at is not None:
+            return
+        if event.kind == "alive" and service == "sim" and "sim" in self.lost:
+            # A new sim starts from the scenario's initial state: the platform's state at the current
+            # step is gone, so the run cannot go on as if nothing happened.
+            self.abort(f"the sim restarted at step {self.core.reached}: the platform's state is lost", now)
             return
         if self.missing:
             if not self.core.paused:
@@ -170,6 +178,11 @@ class ClockNode(Node):
         self._status.put(status.encode())
         self.final_status = status
         self.last_status = now
+
+    def abort(self, reason: str, now: float) -> None:
+        self.finished_at = now
+        self.exit_code = 1
+        self.set_state("aborted", reason, now)
 
     def finish(self, now: float) -> None:
         self.finished_at = now

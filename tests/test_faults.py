@@ -1,0 +1,125 @@
+"""Fault behaviour of the running loop: participant loss and return, sim restart, bad input everywhere."""
+
+from __future__ import annotations
+
+import signal
+import subprocess
+import time
+from collections import defaultdict
+
+import pytest
+import zenoh
+
+from cdpr.protocol import Keys, State, Status
+from cdpr.transport import zenoh_config
+from conftest import CDPR, free_port, last_json_line
+
+pytestmark = pytest.mark.slow
+
+
+class Watcher:
+    """A test-side Zenoh client that records every sim/state payload and the latest clock/status."""
+
+    def __init__(self, session: zenoh.Session, keys: Keys) -> None:
+        self.states: dict[int, list[bytes]] = defaultdict(list)
+        self.status: Status | None = None
+        self.statuses: list[Status] = []
+        self._subs = [
+            session.declare_subscriber(keys.state, self._on_state),
+            session.declare_subscriber(keys.status, self._on_status),
+        ]
+
+    def _on_state(self, sample: zenoh.Sample) -> None:
+        payload = sample.payload.to_bytes()
+        self.states[State.decode(payload).step].append(payload)
+
+    def _on_status(self, sample: zenoh.Sample) -> None:
+        self.status = Status.decode(sample.payload.to_bytes())
+        self.statuses.append(self.status)
+
+    def wait(self, predicate, timeout: float, what: str) -> None:  # type: ignore[no-untyped-def]
+        deadline = time.monotonic() + timeout
+        while not predicate():
+            assert time.monotonic() < deadline, f"timed out waiting for {what}; last status {self.status}"
+            time.sleep(0.01)
+
+
+def _controller(session_id: str, endpoint: str, duration: str) -> subprocess.Popen[str]:
+    return subprocess.Popen(
+        [*CDPR, "controller", "caroca_15kg", "--duration", duration, "--session", session_id,
+         "--zenoh-mode", "client", "--connect", endpoint],
+        stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True,
+    )
+
+
+def test_controller_killed_and_replaced_mid_run(session_id: str) -> None:
+    port = free_port()
+    endpoint = f"tcp/127.0.0.1:{port}"
+    keys = Keys(session_id)
+    up = subprocess.Popen(
+        [*CDPR, "up", "caroca_15kg", "--duration", "2", "--session", session_id, "--without", "controller",
+         "--listen", endpoint, "--quiet"],
+        stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+    )
+    first = second = None
+    try:
+        with zenoh.open(zenoh_config("client", connect=[endpoint])) as z:
+            watch = Watcher(z, keys)
+            first = _controller(session_id, endpoint, "2")
+            watch.wait(lambda: len(watch.states) > 300, 60, "300 steps")
+            first.send_signal(signal.SIGKILL)
+            first.wait(timeout=10)
+            watch.wait(lambda: watch.status is not None and watch.status.state == "paused", 10, "the pause")
+            assert watch.status is not None and "controller" in watch.status.missing
+            paused_at = max(watch.states)
+            time.sleep(1.0)  # no drift while paused
+            assert max(watch.states) <= paused_at + 1
+            second = _controller(session_id, endpoint, "2")
+            watch.wait(lambda: watch.status is not None and watch.status.state == "finished", 90, "the end")
+            out, err = up.communicate(timeout=60)
+            second.wait(timeout=30)
+    finally:
+        for p in (up, first, second):
+            if p is not None and p.poll() is None:
+                p.kill()
+    s = last_json_line(out)
+    assert s["exit_ok"] is True, err
+    assert sorted(watch.states) == list(range(2001)), "a step was skipped"
+    for k, payloads in watch.states.items():
+        assert len(set(payloads)) == 1, f"step {k} was integrated twice with different results"
+    assert second.returncode == 0
+    assert s["final_position_error"] < 1e-3
+
+
+def test_sim_restart_aborts_the_session(session_id: str) -> None:
+    port = free_port()
+    endpoint = f"tcp/127.0.0.1:{port}"
+    keys = Keys(session_id)
+    up = subprocess.Popen(
+        [*CDPR, "up", "caroca_15kg", "--duration", "3", "--session", session_id, "--without", "sim",
+         "--listen", endpoint, "--quiet"],
+        stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+    )
+    sims: list[subprocess.Popen[str]] = []
+    try:
+        with zenoh.open(zenoh_config("client", connect=[endpoint])) as z:
+            watch = Watcher(z, keys)
+            sim_cmd = [*CDPR, "sim", "caroca_15kg", "--duration", "3", "--session", session_id,
+                       "--zenoh-mode", "client", "--connect", endpoint]
+            sims.append(subprocess.Popen(sim_cmd, stderr=subprocess.DEVNULL, text=True))
+            watch.wait(lambda: len(watch.states) > 200, 60, "200 steps")
+            sims[0].send_signal(signal.SIGKILL)
+            sims[0].wait(timeout=10)
+            sims.append(subprocess.Popen(sim_cmd, stderr=subprocess.DEVNULL, text=True))
+            watch.wait(lambda: watch.status is not None and watch.status.state == "aborted", 60, "the abort")
+            assert watch.status is not None and "sim" in watch.status.reason
+            out, err = up.communicate(timeout=60)
+            sims[1].wait(timeout=30)
+    finally:
+        for p in (up, *sims):
+            if p.poll() is None:
+                p.kill()
+    s = last_json_line(out)
+    assert s["exit_ok"] is False
+    assert up.returncode == 1
+    assert "restarted" in err
