@@ -22,7 +22,7 @@ from typing import Any
 
 from cdpr.errors import InputError
 from cdpr.metrics import RunMetrics
-from cdpr.protocol import Command, Keys, ProtocolError, Setpoint, State, Status
+from cdpr.protocol import Command, Keys, ProtocolError, ServiceStats, Setpoint, State, Status
 from cdpr.scenario import Scenario
 from cdpr.service import PARENT_ENV
 from cdpr.transport import Inbox, StopFlag, log, open_session, zenoh_config
@@ -102,6 +102,7 @@ def run_session(
     conf = zenoh_config("router", listen=listen_eps)
     metrics = RunMetrics()
     raw: list[tuple[str, bytes]] = []
+    faults: dict[str, dict[str, int]] = {}
     m = scenario.robot.m
     final: Status | None = None
     children = Children()
@@ -114,6 +115,7 @@ def run_session(
             inbox.subscribe(session, keys.setpoint, "setpoint"),
             inbox.subscribe(session, keys.command, "command"),
             inbox.subscribe(session, keys.status, "status"),
+            inbox.subscribe(session, keys.stats_all, "stats"),
         ]
         common = [scenario.source, "--session", session_id, "--duration", repr(scenario.duration),
                   "--zenoh-mode", "client", "--connect", local]
@@ -164,6 +166,7 @@ def run_session(
         finally:
             # After a normal end the services leave by themselves; otherwise they are told to.
             codes = children.stop(wait_first=STOP_GRACE if exit_ok else 0.0)
+            raw.extend((ev.kind, ev.payload) for ev in inbox.drain(0.05))  # the services' last words
             for s in subs:
                 s.undeclare()
     for kind, payload in raw:
@@ -172,8 +175,11 @@ def run_session(
                 metrics.add_state(State.decode(payload, m), payload)
             elif kind == "setpoint":
                 metrics.add_setpoint(Setpoint.decode(payload))
-            else:
+            elif kind == "command":
                 metrics.add_command(Command.decode(payload, m))
+            elif kind == "stats":
+                stats_msg = ServiceStats.decode(payload)
+                faults[stats_msg.service] = stats_msg.counters
         except ProtocolError:
             pass  # the services log and count bad messages; the summary ignores them
     if stop.signal is not None:
@@ -192,6 +198,7 @@ def run_session(
         "rtf": stats.get("rtf"),
         **metrics.summary(),
         "late_ticks": stats.get("late_ticks"),
+        "faults": {k: v for k, v in {**stats.get("faults", {}), **faults}.items() if v},
         "resends": stats.get("resends"),
         "rrd": rrd,
         "exit_codes": codes,

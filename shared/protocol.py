@@ -70,6 +70,13 @@ class Keys:
     def info(self) -> str:
         return f"{self.prefix}/session/info"
 
+    def stats(self, service: str) -> str:
+        return f"{self.prefix}/stats/{service}"
+
+    @property
+    def stats_all(self) -> str:
+        return f"{self.prefix}/stats/*"
+
     def alive(self, service: str) -> str:
         return f"{self.prefix}/alive/{service}"
 
@@ -87,6 +94,7 @@ class Keys:
             "command": self.command,
             "info": self.info,
             "alive": self.alive("{service}"),
+            "stats": self.stats("{service}"),
         }
 
 
@@ -99,6 +107,7 @@ WIRING: dict[str, dict[str, tuple[str, ...]]] = {
     "setpoint": {"publishers": ("trajectory",), "subscribers": ("controller", "recorder")},
     "command": {"publishers": ("controller",), "subscribers": ("sim", "recorder")},
     "info": {"publishers": ("clock",), "subscribers": ()},
+    "stats": {"publishers": ("every service",), "subscribers": ("clock",)},
 }
 
 
@@ -302,6 +311,33 @@ class Command:
         if not isinstance(status, str):
             raise ProtocolError(f"status: expected a string, got {type(status).__name__}")
         return cls(_int(msg, "step"), _float(msg, "t"), _vector(msg, "tensions", cables), feasible, status)
+
+
+@dataclass(frozen=True, slots=True)
+class ServiceStats:
+    """``stats/{service}``: a service's fault counters (dropped, clamped, … messages), about once a second
+    while they change and once when the service stops. The clock gathers them into its status."""
+
+    KEY: ClassVar[str] = "stats"
+    service: str
+    counters: dict[str, int]
+
+    def encode(self) -> bytes:
+        return pack({"service": self.service, "counters": dict(self.counters)})
+
+    @classmethod
+    def decode(cls, payload: bytes) -> ServiceStats:
+        msg = unpack(payload)
+        service = _field(msg, "service")
+        if not isinstance(service, str) or service not in SERVICES:
+            raise ProtocolError(f"service: expected one of {', '.join(SERVICES)}, got {service!r}")
+        counters = _field(msg, "counters")
+        if not isinstance(counters, dict) or not all(
+            isinstance(k, str) and isinstance(v, int) and not isinstance(v, bool) and v >= 0
+            for k, v in counters.items()
+        ):
+            raise ProtocolError("counters: expected a map of names to non-negative integers")
+        return cls(service, counters)
 
 
 CLOCK_STATES = ("waiting", "running", "paused", "finished", "aborted")

@@ -5,8 +5,8 @@ is spelled exactly once (documented in ``docs/recording.md``). Two timelines: ``
 clock's step k) and ``sim_time`` (duration, the message's own ``t`` — never wall time).
 
 Pure helpers (:func:`cable_strips`, :func:`tension_colors`, :func:`anchor_labels`) compute geometry and
-colours; the ``log_*``/``send_*`` functions write to a :class:`rerun.RecordingStream` passed in (no
-global recording is ever used).
+colours; the ``log_*``/``send_*`` functions write to a :class:`Recording` passed in (no global
+recording is ever used).
 """
 
 from __future__ import annotations
@@ -181,6 +181,7 @@ class Recording:
     ) -> None:
         self.recording_id = rec_id
         self.streams: list[rr.RecordingStream] = []  # the file's first
+        self._file: rr.RecordingStream | None = None
         if rrd is not None:
             path = Path(rrd)
             try:
@@ -191,10 +192,11 @@ class Recording:
             stream = rr.RecordingStream(APP_ID, recording_id=rec_id)
             stream.set_sinks(rr.FileSink(str(path)), default_blueprint=blueprint)
             self.streams.append(stream)
+            self._file = stream
         urls: list[str] = []
         live = rr.RecordingStream(APP_ID, recording_id=rec_id) if spawn or viewer else None
         if spawn:
-            rr.spawn(connect=False, recording=live)
+            rr.spawn(connect=False, recording=live, executable_path=rerun_binary())
             urls.append(DEFAULT_VIEWER_URL)
         if viewer and viewer not in urls:
             urls.append(viewer)
@@ -222,9 +224,13 @@ class Recording:
     def close(self, viewer_timeout: float = 1.0) -> list[str]:
         """Flush and close every sink, the file first; returns the problems met (e.g. a lost viewer)."""
         problems = []
-        for i, stream in enumerate(self.streams):
+        for stream in self.streams:
+            live = stream is not self._file
             try:
-                stream.flush(timeout_sec=viewer_timeout if i or len(self.streams) == 1 and not self._file else 1e9)
+                if live:
+                    stream.flush(timeout_sec=viewer_timeout)
+                else:
+                    stream.flush()
             except Exception as exc:  # the SDK raises RuntimeError when a gRPC sink cannot be reached
                 problems.append(str(exc).splitlines()[0] if str(exc) else type(exc).__name__)
             stream.disconnect()
@@ -402,8 +408,8 @@ def show_robot(robot: Robot, rrd: str | Path | None = None, viewer: str | None =
     Writes ``rrd`` if given, streams to ``viewer`` if given, else spawns a viewer.
     """
     rec_id = f"show-{robot.name}-{uuid.uuid4().hex[:8]}"
-    rec = open_stream(rec_id, rrd=rrd, spawn=rrd is None and viewer is None, viewer=viewer,
-                      blueprint=scene_blueprint())
+    rec = Recording(rec_id, rrd=rrd, spawn=rrd is None and viewer is None, viewer=viewer,
+                    blueprint=scene_blueprint())
     rec.send_recording_name(f"{robot.name} at home")
     log_scene(rec, robot, ghost=False)
     home = np.concatenate([robot.home_position, matrix_to_quat(robot.home_rotation)])
@@ -415,9 +421,19 @@ def show_robot(robot: Robot, rrd: str | Path | None = None, viewer: str | None =
         static=True,
     )
     log_session(rec, {"robot": robot.summary(), "recording_id": rec_id})
-    rec.flush()
-    rec.disconnect()
-    return {"robot": robot.name, "cables": robot.m, "rrd": None if rrd is None else str(rrd), "recording_id": rec_id}
+    problems = rec.close()
+    return {"robot": robot.name, "cables": robot.m, "rrd": None if rrd is None else str(rrd), "recording_id": rec_id,
+            "problems": problems}
+
+
+def rerun_binary() -> str | None:
+    """The viewer binary shipped with rerun-sdk (so a viewer starts even when the venv is not on PATH)."""
+    try:
+        import rerun_cli
+    except ImportError:
+        return None
+    exe = Path(rerun_cli.__file__).parent / "rerun"
+    return str(exe) if exe.is_file() else None
 
 
 def viewer_command(path: str | Path, web: bool = False, web_port: int = 9090, grpc_port: int = 9876) -> list[str]:

@@ -16,7 +16,7 @@ from typing import Any
 import zenoh
 
 from cdpr.errors import InputError
-from cdpr.protocol import Keys, ProtocolError, Status
+from cdpr.protocol import Keys, ProtocolError, ServiceStats, Status
 from cdpr.transport import Event, Inbox, StopFlag, log, open_session
 
 PARENT_ENV = "CDPR_PARENT_PID"
@@ -32,6 +32,10 @@ class Node:
         self.done = False
         self.exit_code = 0
         self.final_status: Status | None = None
+        self.counters: dict[str, int] = {}  # fault counters, published on stats/{name}
+
+    def count(self, what: str) -> None:
+        self.counters[what] = self.counters.get(what, 0) + 1
 
     def declare(self, session: zenoh.Session, inbox: Inbox) -> list[Any]:
         """Declare subscribers (through ``inbox``) and publishers; return them to keep them alive."""
@@ -79,7 +83,18 @@ def serve(node: Node, conf: zenoh.Config, stop: StopFlag | None = None) -> int:
         inbox = Inbox()
         keep = node.declare(session, inbox)
         keep.append(inbox.subscribe(session, node.keys.status, "status"))
+        stats_pub = session.declare_publisher(node.keys.stats(node.name))
         token = session.liveliness().declare_token(node.keys.alive(node.name))
+        published: dict[str, int] = {}
+        last_stats = time.monotonic()
+
+        def publish_stats() -> None:
+            nonlocal published, last_stats
+            last_stats = time.monotonic()
+            if node.counters != published:
+                published = dict(node.counters)
+                stats_pub.put(ServiceStats(node.name, published).encode())
+
         try:
             while not node.done and not stop:
                 for event in inbox.drain(node.timeout(time.monotonic())):
@@ -87,18 +102,23 @@ def serve(node: Node, conf: zenoh.Config, stop: StopFlag | None = None) -> int:
                         try:
                             node.on_status(Status.decode(event.payload))
                         except ProtocolError as exc:
+                            node.count("bad_status")
                             log(node.name, f"dropped a bad clock/status message: {exc}")
                     else:
                         node.handle(event)
                     if node.done:
                         break
                 node.idle(time.monotonic())
+                if time.monotonic() - last_stats >= 1.0:
+                    publish_stats()
                 if not _parent_alive(parent):
                     log(node.name, "the process that launched this service is gone; stopping")
                     break
         finally:
             node.close()
+            publish_stats()
             token.undeclare()
+            stats_pub.undeclare()
             for entity in keep:
                 undeclare = getattr(entity, "undeclare", None)
                 if undeclare is not None:

@@ -15,7 +15,7 @@ from typing import Any
 import msgpack
 import zenoh
 
-from cdpr.protocol import PROTOCOL_VERSION, Keys, ProtocolError, State, Status, Tick
+from cdpr.protocol import PROTOCOL_VERSION, Keys, ProtocolError, ServiceStats, State, Status, Tick
 from cdpr.scenario import Scenario
 from cdpr.service import Node
 from cdpr.transport import PUBLISH_OPTS, Event, Inbox, RateLimitedLog, log
@@ -48,7 +48,7 @@ class ClockNode(Node):
         self.state = "waiting"
         self.reason = ""
         self.finished_at: float | None = None
-        self.bad_states = 0
+        self.faults: dict[str, dict[str, int]] = {}  # every service's fault counters (stats/{service})
         self.lost: set[str] = set()  # participants that left after tick 0
         self.warn = RateLimitedLog(self.name)
         self._tick: zenoh.Publisher | None = None
@@ -69,6 +69,7 @@ class ClockNode(Node):
 
         return [
             inbox.subscribe(session, self.keys.state, "state"),
+            inbox.subscribe(session, self.keys.stats_all, "stats"),
             inbox.watch_liveliness(session, self.keys.alive_all),
             session.declare_queryable(self.keys.info, on_query),
             self._tick,
@@ -85,12 +86,21 @@ class ClockNode(Node):
             try:
                 state = State.decode(event.payload)
             except ProtocolError as exc:
-                self.bad_states += 1
+                self.count("bad_states")
                 self.warn("bad_state", f"dropped a bad sim/state: {exc}")
                 return
             self.core.on_state(state.step, now)
             if self.core.finished and self.finished_at is None:
                 self.finish(now)
+            return
+        if event.kind == "stats":
+            try:
+                stats = ServiceStats.decode(event.payload)
+            except ProtocolError as exc:
+                self.count("bad_stats")
+                self.warn("bad_stats", f"dropped a bad stats message: {exc}")
+                return
+            self.faults[stats.service] = stats.counters
             return
         service = event.key.rsplit("/", 1)[-1]
         if event.kind == "alive":
@@ -165,7 +175,8 @@ class ClockNode(Node):
     def publish_status(self, now: float) -> None:
         assert self._status is not None
         stats = self.core.stats(self.finished_at if self.finished_at is not None else now)
-        stats["bad_states"] = self.bad_states
+        faults = {**self.faults, "clock": dict(self.counters)} if self.counters else dict(self.faults)
+        stats["faults"] = {k: v for k, v in faults.items() if v}
         status = Status(
             state=self.state,
             step=max(self.core.reached, 0),

@@ -51,6 +51,7 @@ class ControllerNode(Node):
                 self.setpoints[sp.step] = sp
                 k, resend = sp.step, False
         except ProtocolError as exc:
+            self.count(f"bad_{event.kind}s")
             self.warn(f"bad_{event.kind}", f"dropped a bad {event.kind} message: {exc}")
             return
         state_k, setpoint_k = self.states.get(k), self.setpoints.get(k)
@@ -61,6 +62,7 @@ class ControllerNode(Node):
         result = self.core.step(state, setpoint)
         if not result.feasible:
             self.infeasible += 1
+            self.count("infeasible_distributions")
             self.warn("infeasible", f"step {state.step}: tension distribution {result.status} "
                       f"(residual {result.residual:.3g}); sending the nearest admissible tensions")
         assert self._pub is not None

@@ -54,7 +54,7 @@ class RecorderNode(Node):
         self.finish_by: float | None = None  # set when the clock has finished, until the final state is in
         self.closed = False
         self.recording_id = R.recording_id(keys.session)
-        self.rec = R.open_stream(self.recording_id, rrd=rrd, spawn=spawn, viewer=viewer, blueprint=R.blueprint())
+        self.rec = R.Recording(self.recording_id, rrd=rrd, spawn=spawn, viewer=viewer, blueprint=R.blueprint())
         self._log_static()
 
     def _log_static(self) -> None:
@@ -189,11 +189,9 @@ class RecorderNode(Node):
         self.closed = True
         try:
             self.flush(final=True)
-            self.rec.flush(timeout_sec=10.0)
-        except Exception as exc:  # a viewer that went away must not prevent closing the file
-            log(self.name, f"could not flush every sink: {str(exc).splitlines()[0] if str(exc) else type(exc).__name__}")
         finally:
-            self.rec.disconnect()
+            for problem in self.rec.close():
+                log(self.name, f"a viewer did not get everything: {problem}")
         last = self.core.last_state.step if self.core.last_state is not None else -1
         where = f" to {self.rrd}" if self.rrd else ""
         log(self.name, f"recorded {self.core.recorded_states} states (last step {last}){where}; "

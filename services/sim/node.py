@@ -55,7 +55,7 @@ class SimNode(Node):
         self.published_step = -1
         self.pending: Command | None = None  # a valid command for the current step, waiting for its tick
         self.clamped = 0
-        self.counters = {"bad_commands": 0, "stale_commands": 0, "future_commands": 0, "bad_ticks": 0}
+        self.last_command: Command | None = None  # the command of the last step taken
         self.warn = RateLimitedLog(self.name)
         self._pub: zenoh.Publisher | None = None
 
@@ -73,7 +73,7 @@ class SimNode(Node):
             try:
                 tick = Tick.decode(event.payload)
             except ProtocolError as exc:
-                self.counters["bad_ticks"] += 1
+                self.count("bad_ticks")
                 self.warn("bad_tick", f"dropped a bad clock/tick: {exc}")
                 return
             self.on_tick(tick.step)
@@ -81,7 +81,7 @@ class SimNode(Node):
             try:
                 cmd = Command.decode(event.payload, self.m)
             except ProtocolError as exc:
-                self.counters["bad_commands"] += 1
+                self.count("bad_commands")
                 self.warn("bad_command", f"dropped a bad controller/command: {exc}")
                 return
             self.on_command(cmd)
@@ -112,18 +112,28 @@ class SimNode(Node):
 
     def on_command(self, cmd: Command) -> None:
         if cmd.step < self.step:
-            self.counters["stale_commands"] += 1  # a duplicate or late answer for a step already taken
+            last = self.last_command
+            if last is not None and cmd.step == last.step and cmd.tensions != last.tensions:
+                # The first valid command of a step wins; a different one for the same step means
+                # a second controller is publishing in this session.
+                self.count("conflicting_commands")
+                self.warn("conflict", f"step {cmd.step}: a different command arrived after the one applied "
+                          "(is a second controller publishing in this session?); ignored")
+            else:
+                self.count("stale_commands")  # a repeated answer (after a resend) or a late one
             return
         if cmd.step > self.step or cmd.step >= self.total_steps:
-            self.counters["future_commands"] += 1
+            self.count("future_commands")
             self.warn("future_command", f"dropped controller/command for step {cmd.step}: the sim is at step {self.step}")
             return
         if self.step > self.allowed:
             self.pending = cmd  # the controller was quicker than the tick: wait for the clock
             return
         report = self.sim.step(np.asarray(cmd.tensions))
+        self.last_command = cmd
         if report.clamped_low or report.clamped_high:
             self.clamped += 1
+            self.count("clamped_commands")
             self.warn(
                 "clamped",
                 f"step {cmd.step}: clamped {report.clamped_low} tension(s) below 0 and "
@@ -133,6 +143,5 @@ class SimNode(Node):
         self.publish_state()
 
     def close(self) -> None:
-        bad = {k: v for k, v in self.counters.items() if v}
         log(self.name, f"stopped at step {self.step}/{self.total_steps}; clamped commands: {self.clamped}"
-            + (f"; {bad}" if bad else ""))
+            + (f"; {self.counters}" if self.counters else ""))

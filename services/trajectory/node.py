@@ -31,6 +31,7 @@ class TrajectoryNode(Node):
         try:
             tick = Tick.decode(event.payload)
         except ProtocolError as exc:
+            self.count("bad_ticks")
             self.warn("bad_tick", f"dropped a bad clock/tick: {exc}")
             return
         assert self._pub is not None
