@@ -333,6 +333,7 @@ def up(**kw: Any) -> None:
               help="web viewer HTTP port with --web (0: a free one)")
 def replay(file: str, web: bool, port: int) -> None:
     """Open the recording FILE.rrd in the Rerun viewer (with --web: serve it and print the URL)."""
+    import signal
     import subprocess
     from pathlib import Path
 
@@ -343,14 +344,17 @@ def replay(file: str, web: bool, port: int) -> None:
         raise InputError(f"{file}: no such file")
     web_port, grpc_port = (port or free_port(), free_port()) if web else (0, 0)
     proc = subprocess.Popen(viewer_command(file, web=web, web_port=web_port, grpc_port=grpc_port))
+
+    def forward(signum: int, _frame: Any) -> None:  # the viewer stops with us
+        proc.send_signal(signum)
+
+    for sig in (signal.SIGINT, signal.SIGTERM):
+        signal.signal(sig, forward)
     if web:
         _emit({"url": web_viewer_url(web_port, grpc_port), "file": file})
+        sys.stdout.flush()
         click.echo("serving the web viewer; Ctrl-C to stop", err=True)
-    try:
-        code = proc.wait()
-    except KeyboardInterrupt:
-        proc.terminate()
-        code = proc.wait()
+    code = proc.wait()
     sys.exit(code if code >= 0 else 128 - code)
 
 

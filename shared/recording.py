@@ -69,7 +69,7 @@ TENSION_MIN = "tension/tmin"
 TENSION_MAX = "tension/tmax"
 COMMAND_FEASIBLE = "command/feasible"  # 1 feasible, 0 not (controller's tension distribution)
 COMMAND_STATUS = "command/status"  # TextLog of every command whose status is not "ok"
-CLOCK = "clock"  # clock/<stat> for each numeric field of clock/status stats
+CLOCK = "clock"  # clock/<stat> for each number in clock/status stats (nested maps joined with "/")
 CLOCK_STATE = "clock/state"  # TextLog of the clock's state changes
 
 AXES = ("x", "y", "z")
@@ -437,10 +437,15 @@ def rerun_binary() -> str | None:
 
 
 def viewer_command(path: str | Path, web: bool = False, web_port: int = 9090, grpc_port: int = 9876) -> list[str]:
-    """The ``rerun`` command line (the viewer shipped with rerun-sdk) that opens ``path``."""
+    """The ``rerun`` command line (the viewer shipped with rerun-sdk) that opens ``path``.
+
+    The binary is called directly when found (``python -m rerun`` would not pass signals on to it).
+    """
     import sys
 
-    cmd = [sys.executable, "-m", "rerun", str(path)]
+    exe = rerun_binary()
+    cmd = [exe] if exe else [sys.executable, "-m", "rerun"]
+    cmd.append(str(path))
     if web:
         cmd += ["--web-viewer", "--web-viewer-port", str(web_port), "--port", str(grpc_port), "--renderer", "webgl"]
     return cmd

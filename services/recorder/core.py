@@ -16,6 +16,7 @@ as numpy columns, ready for one ``rr.send_columns`` per entity. Rules:
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from typing import Any
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
@@ -134,6 +135,19 @@ def orientation_errors(q_desired: ArrayLike, q: ArrayLike) -> F64:
     return e[:, :3] * scale[:, None]
 
 
+def flatten_stats(stats: dict[str, Any], prefix: str = "") -> dict[str, float]:
+    """The finite numbers of a (nested) stats map, keyed by path: ``{"faults": {"sim": {"x": 1}}}`` →
+    ``{"faults/sim/x": 1.0}``. Anything else (text, lists, booleans) is left out."""
+    out: dict[str, float] = {}
+    for key, value in stats.items():
+        name = f"{prefix}{key}"
+        if isinstance(value, dict):
+            out.update(flatten_stats(value, f"{name}/"))
+        elif isinstance(value, (int, float)) and not isinstance(value, bool) and np.isfinite(value):
+            out[name] = float(value)
+    return out
+
+
 def _ids(values: list[int]) -> I64:
     return np.asarray(values, dtype=np.int64)
 
@@ -216,8 +230,7 @@ class RecorderCore:
         return True
 
     def add_status(self, st: Status) -> None:
-        stats = {k: float(v) for k, v in st.stats.items()
-                 if isinstance(v, (int, float)) and not isinstance(v, bool) and np.isfinite(v)}
+        stats = flatten_stats(st.stats)
         key = (st.state, st.reason)
         self.statuses.append(StatusRow(st.step, st.t, st.state, st.reason, stats, key != self._last_clock))
         self._last_clock = key

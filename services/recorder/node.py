@@ -100,6 +100,7 @@ class RecorderNode(Node):
                 self.core.add_tick(Tick.decode(event.payload).step)
         except ProtocolError as exc:
             self.bad_messages += 1
+            self.count(f"bad_{event.kind}s")
             self.warn(f"bad_{event.kind}", f"dropped a bad {event.kind} message: {exc}")
             return
         if self.core.due:

@@ -197,20 +197,9 @@ class PlatformSim:
         self._tensions = _readonly(np.zeros(self.robot.m))
 
     def _set_planar(self, p: Array, R: Array, v: Array) -> None:
-        theta = float(np.arctan2(R[0, 2], R[0, 0]))  # R = Ry(θ) = [[c, 0, s], [0, 1, 0], [−s, 0, c]]
-        c, s = np.cos(theta), np.sin(theta)
-        Ry = np.array([[c, 0.0, s], [0.0, 1.0, 0.0], [-s, 0.0, c]])
-        off_plane = {
-            "position y": abs(p[1]),
-            "rotation (not about y)": float(np.abs(R - Ry).max()),
-            "twist v_y": abs(v[1]),
-            "twist ω_x, ω_z": max(abs(v[3]), abs(v[5])),
-        }
-        for what, err in off_plane.items():
-            if err > _PLANAR_TOL:
-                raise ValueError(f"a planar robot moves in the x–z plane: {what} must be 0 (got {err:.3g})")
-        self._joint.setPositions(np.array([p[2], p[0], theta]))
-        self._joint.setVelocities(np.array([v[2], v[0], v[4]]))
+        positions, velocities = planar_coordinates(p, R, v)
+        self._joint.setPositions(positions)
+        self._joint.setVelocities(velocities)
 
     def _snapshot(self) -> _Snapshot:
         """The current state's geometry, computed at most once per step (until the next step or reset)."""
@@ -268,6 +257,26 @@ class PlatformSim:
         self.step_count += 1
         self._tensions = _readonly(applied)
         return StepReport(self._tensions, low, high, _readonly(damping))
+
+
+def planar_coordinates(p: Array, R: Array, v: Array) -> tuple[Array, Array]:
+    """A ZX ``PlanarJoint``'s positions ``[z, x, θ_y]`` and velocities ``[ż, ẋ, θ̇_y]`` for a pose and twist.
+
+    Raises ``ValueError`` if the pose or the twist leaves the x–z plane by more than ``_PLANAR_TOL``.
+    """
+    theta = float(np.arctan2(R[0, 2], R[0, 0]))  # R = Ry(θ) = [[c, 0, s], [0, 1, 0], [−s, 0, c]]
+    c, s = np.cos(theta), np.sin(theta)
+    Ry = np.array([[c, 0.0, s], [0.0, 1.0, 0.0], [-s, 0.0, c]])
+    off_plane = {
+        "position y": abs(p[1]),
+        "rotation (not about y)": float(np.abs(R - Ry).max()),
+        "twist v_y": abs(v[1]),
+        "twist ω_x, ω_z": max(abs(v[3]), abs(v[5])),
+    }
+    for what, err in off_plane.items():
+        if err > _PLANAR_TOL:
+            raise ValueError(f"a planar robot moves in the x–z plane: {what} must be 0 (got {err:.3g})")
+    return np.array([p[2], p[0], theta]), np.array([v[2], v[0], v[4]])
 
 
 def _vector(x: ArrayLike, n: int, what: str) -> Array:

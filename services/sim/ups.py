@@ -1,0 +1,301 @@
+"""The seed paper's own cable model as a cross-check of :class:`cdpr_sim.core.PlatformSim`. No I/O.
+
+Model (seed paper §3.1: "a parallel robot with universal-prismatic-spherical (U-P-S) architecture with
+the prismatic joint actuated", "virtual links … defined with negligible masses")
+------------------------------------------------------------------------------------------------------
+* The platform is the same free rigid body as in ``PlatformSim`` (a ``FreeJoint``; a ``PlanarJoint``
+  in the ZX plane for planar robots), its own skeleton.
+* Cable i is a leg, its own skeleton hung from the world: a ``UniversalJoint`` centred at the frame
+  point a_i → link ``upper`` (centre of mass at a_i) → a ``PrismaticJoint`` along the cable → link
+  ``lower`` (centre of mass at the far end). The prismatic coordinate is the cable length l_i: the
+  lower link's origin is at ``a_i + l_i u_i``, ``u_i`` the unit vector from a_i towards the platform.
+* The spherical joint at the platform point b_i closes each loop: a
+  ``dartpy.constraint.BallJointConstraint`` between the lower link and the platform, added to the
+  world's constraint solver (DART solves the 8 × 3 bilateral impulses as one boxed LCP, Dantzig).
+  DART's defaults are kept: error reduction 0.01 per step, constraint force mixing 1e-9.
+* The universal joint's frame is aligned at every :meth:`UpsSim.reset` so that its z axis is the cable
+  direction at the initial pose (its two angles start at 0, 90° away from the joint's singularity);
+  the prismatic coordinate starts at the inverse-kinematics length and every joint velocity at the
+  value that makes each leg's end move with its platform point (the leg's 3×3 Jacobian, solved).
+* Tension: the prismatic joint's generalized force is ``−(f_i + c·l̇_i)``, with f_i clamped to
+  ``[0, tmax]`` by :func:`cdpr_sim.core.clamp_tensions` (DART does not clamp FORCE joints) — the axis
+  points away from a_i, so a positive tension pulls the platform towards a_i, as in ``PlatformSim``.
+
+Damping, and why it is applied explicitly
+-----------------------------------------
+``robot.cable_damping`` c acts on the prismatic joint (force ``−c·l̇_i``), ``robot.passive_damping``
+c_p on the universal joints (torques ``−c_p·q̇_U``) and on the spherical joints (torque
+``−c_p (ω_platform − ω_lower)`` on the platform, the opposite on the lower link). All are evaluated
+with the velocities at the start of the step and added to the commands, exactly like the cable damping
+of ``PlatformSim``. DART's own joint damping (``setDampingCoefficient``) is *not* used: DART integrates
+it implicitly, ``−c·q̇_{k+1}``, inside each skeleton's *unconstrained* step, before the loop-closure
+impulses. For a near-massless leg that velocity is dominated by ``f·dt/m_link`` (the tension
+accelerating the light link alone), so the built-in damping would absorb the fraction
+``c·dt/(m_link + c·dt)`` of every tension: half of it with m_link = 1e-3 kg, c = 1 N·s/m, dt = 1 ms.
+Measured: the platform's one-step acceleration was then off by 3.3 m/s² (22 times the whole damping
+effect) instead of 1e-5 m/s².
+
+Link masses
+-----------
+Each link is a 1 g solid sphere of 5 mm radius (the Gazebo cable's visual radius): m_link = 1e-3 kg,
+inertia 1e-8 kg·m². Their effect, to first order: the lower link's centre of mass moves with b_i, so
+the platform behaves as if it carried m extra point masses m_link at its platform points (the upper
+link sits on the fixed point a_i and only adds its 1e-8 kg·m² about it). For CAROCA at 15 kg that is
++8 g (5.3e-4 relative) and +0.33 % to 0.65 % of each principal moment; the one-step accelerations
+match Newton–Euler of that augmented body to ~1e-7 relative, and the unaugmented body to 2e-3 relative
+(tests/test_ups.py). In the closed loop the controller, unaware of the 8 g, sees an extra weight of
+0.078 N: a steady offset of ~0.078/(15·1500) ≈ 3.5 µm. Lighter links change nothing visible (1e-4 kg
+gives the same trajectory to within the test tolerance) but worsen the LCP's conditioning (platform
+to link mass ratio 1.5e5); heavier ones (1e-2 kg) perturb the platform ten times more.
+
+Accuracy of the loop closure
+----------------------------
+DART enforces the closures at the velocity level with the Jacobians at the start of the step, so each
+step leaves an O(dt²·|ω_leg|²·l) position gap at each spherical joint, which the error reduction
+(1 %/step) keeps bounded; the gap ‖a_i + l_i u_i − (t + R b_i)‖ is reported by
+:meth:`UpsSim.closure_errors` and the prismatic lengths equal the inverse-kinematics lengths to that
+gap (< 1e-6 m on the 15 kg scenario). State: pose and twist are read from the platform body (world
+frame, at its centre of mass), cable lengths and rates are the prismatic joints' positions and
+velocities, tensions are as applied. Same inputs, bit-identical outputs.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import dartpy as dart
+import numpy as np
+from cdpr.robot import GRAVITY, Robot
+from cdpr.rotation import Array, matrix_to_quat
+from numpy.typing import ArrayLike
+
+from cdpr_sim.core import (
+    PlatformState,
+    StepReport,
+    _readonly,
+    _rotation,
+    _vector,
+    clamp_tensions,
+    planar_coordinates,
+)
+
+LINK_MASS = 1e-3  # kg, each of the two virtual links of a leg
+LINK_RADIUS = 0.005  # m, the links' inertia is a solid sphere's of this radius (the cable's visual radius)
+
+
+@dataclass(frozen=True)
+class _Leg:
+    """One cable: U joint at a_i → upper link → prismatic joint → lower link (ball-joined to the platform)."""
+
+    skeleton: dart.dynamics.Skeleton
+    universal: dart.dynamics.UniversalJoint
+    prismatic: dart.dynamics.PrismaticJoint
+    lower: dart.dynamics.BodyNode
+
+
+@dataclass(frozen=True)
+class _Snapshot:
+    position: Array  # (3,)
+    rotation: Array  # (3, 3)
+    twist: Array  # (6,)
+    lengths: Array  # (m,) prismatic positions
+    rates: Array  # (m,) prismatic velocities
+    leg_velocities: Array  # (m, 3) [q̇_U1, q̇_U2, l̇] per leg
+
+
+class UpsSim:
+    """The platform of ``robot`` hung from m U-P-S legs in one DART world, stepped by cable tensions.
+
+    Same interface as :class:`cdpr_sim.core.PlatformSim` (``dt`` in s, initial pose defaults to home,
+    twist to rest, ``t = step_count·dt``). ``link_mass`` (kg) is the mass of each virtual link.
+    """
+
+    def __init__(
+        self,
+        robot: Robot,
+        dt: float = 1e-3,
+        position: ArrayLike | None = None,
+        rotation: ArrayLike | None = None,
+        twist: ArrayLike | None = None,
+        *,
+        link_mass: float = LINK_MASS,
+    ) -> None:
+        if not (np.isfinite(dt) and dt > 0.0):
+            raise ValueError(f"dt must be a positive finite number of seconds (got {dt})")
+        if not (np.isfinite(link_mass) and link_mass > 0.0):
+            raise ValueError(f"link_mass must be a positive finite number of kg (got {link_mass})")
+        self.robot = robot
+        self.dt = float(dt)
+        self.step_count = 0
+        self.link_mass = float(link_mass)
+        self._a = np.array(robot.frame_points, dtype=float)
+        self._b = np.array(robot.platform_points, dtype=float)
+        self._planar = robot.mode == "planar"
+        self._world = dart.simulation.World()
+        self._world.setGravity(GRAVITY)
+        self._world.setTimeStep(self.dt)
+        sleep = self._world.getDeactivationOptions()
+        sleep.mEnabled = False  # a slow platform must never be frozen
+        self._world.setDeactivationOptions(sleep)
+        platform = dart.dynamics.Skeleton("platform")
+        if self._planar:
+            joint, body = platform.createPlanarJointAndBodyNodePair()
+            joint.setZXPlane()  # generalized coordinates [z, x, θ about +y]
+        else:
+            joint, body = platform.createFreeJointAndBodyNodePair()
+        body.setName("platform")
+        body.setInertia(dart.dynamics.Inertia(robot.mass, np.zeros(3), np.array(robot.inertia, dtype=float)))
+        self._world.addSkeleton(platform)
+        self._joint = joint
+        self._body = body
+        link_inertia = dart.dynamics.Inertia(self.link_mass, np.zeros(3), np.eye(3) * 0.4 * self.link_mass * LINK_RADIUS**2)
+        self._legs = tuple(self._make_leg(i, link_inertia) for i in range(robot.m))
+        self._tensions = _readonly(np.zeros(robot.m))
+        self._snap: _Snapshot | None = None
+        self.reset(position, rotation, twist)
+        # The closures are made once, with every leg's end on its platform point: the constraint keeps
+        # the offsets (0 on the lower link, b_i on the platform), which every reset preserves.
+        solver = self._world.getConstraintSolver()
+        ends = self._platform_points_world()
+        for leg, point in zip(self._legs, ends, strict=True):
+            solver.addConstraint(dart.constraint.BallJointConstraint(leg.lower, body, point))
+
+    def _make_leg(self, i: int, inertia: dart.dynamics.Inertia) -> _Leg:
+        skeleton = dart.dynamics.Skeleton(f"cable_{i}")
+        universal, upper = skeleton.createUniversalJointAndBodyNodePair()
+        universal.setAxis1(np.array([1.0, 0.0, 0.0]))
+        universal.setAxis2(np.array([0.0, 1.0, 0.0]))
+        upper.setName(f"cable_{i}_upper")
+        upper.setInertia(inertia)
+        prismatic, lower = skeleton.createPrismaticJointAndBodyNodePair(upper)
+        prismatic.setAxis(np.array([0.0, 0.0, 1.0]))
+        lower.setName(f"cable_{i}_lower")
+        lower.setInertia(inertia)
+        self._world.addSkeleton(skeleton)
+        return _Leg(skeleton, universal, prismatic, lower)
+
+    @property
+    def t(self) -> float:
+        return self.step_count * self.dt
+
+    # -- state ------------------------------------------------------------------------------------
+    def reset(
+        self,
+        position: ArrayLike | None = None,
+        rotation: ArrayLike | None = None,
+        twist: ArrayLike | None = None,
+    ) -> None:
+        """Back to step 0 at the given pose and twist (defaults: home pose, at rest), legs by IK."""
+        p = _vector(self.robot.home_position if position is None else position, 3, "position")
+        R = _rotation(self.robot.home_rotation if rotation is None else rotation)
+        v = _vector(np.zeros(6) if twist is None else twist, 6, "twist")
+        world = dart.dynamics.Frame.World()
+        if self._planar:
+            positions, velocities = planar_coordinates(p, R, v)
+            self._joint.setPositions(positions)
+            self._joint.setVelocities(velocities)
+        else:
+            tf = dart.math.Isometry3()
+            tf.set_rotation(R)
+            tf.set_translation(p)
+            self._joint.setTransform(tf, world)
+            self._joint.setLinearVelocity(v[:3], world, world)
+            self._joint.setAngularVelocity(v[3:], world, world)
+        # Read the pose back from DART, so that the legs meet the platform exactly where DART has it.
+        ends = self._platform_points_world()
+        vt, w = self._body.getLinearVelocity(), self._body.getAngularVelocity()
+        R_dart = self._body.getTransform().rotation()
+        for leg, a, b, end in zip(self._legs, self._a, self._b, ends, strict=True):
+            vec = end - a
+            length = float(np.linalg.norm(vec))
+            if length < 1e-9:
+                raise ValueError("a cable has zero length at this pose")
+            frame = dart.math.Isometry3()
+            frame.set_rotation(_frame_with_z(vec / length))
+            frame.set_translation(a)
+            leg.universal.setTransformFromParentBodyNode(frame)
+            leg.skeleton.setPositions(np.array([0.0, 0.0, length]))
+            # Inverse velocity kinematics: the leg's end moves with its platform point t + R b.
+            point_velocity = vt + np.cross(w, R_dart @ b)
+            leg.skeleton.setVelocities(np.linalg.solve(leg.lower.getLinearJacobian(), point_velocity))
+            leg.skeleton.clearExternalForces()
+            leg.skeleton.clearInternalForces()
+        self._body.clearExternalForces()
+        self._world.reset()
+        self._snap = None
+        self.step_count = 0
+        self._tensions = _readonly(np.zeros(self.robot.m))
+
+    def _platform_points_world(self) -> Array:
+        tf = self._body.getTransform()
+        return tf.translation() + self._b @ tf.rotation().T
+
+    def _snapshot(self) -> _Snapshot:
+        if self._snap is not None:
+            return self._snap
+        tf = self._body.getTransform()
+        legs = np.array([leg.skeleton.getPositions() for leg in self._legs])
+        leg_v = np.array([leg.skeleton.getVelocities() for leg in self._legs])
+        twist = np.concatenate((self._body.getLinearVelocity(), self._body.getAngularVelocity()))
+        snap = _Snapshot(
+            *(_readonly(x) for x in (tf.translation(), tf.rotation(), twist, legs[:, 2], leg_v[:, 2], leg_v))
+        )
+        self._snap = snap
+        return snap
+
+    def state(self) -> PlatformState:
+        """The current state. Its arrays are read-only and never change afterwards: safe to keep."""
+        s = self._snapshot()
+        return PlatformState(
+            step=self.step_count,
+            t=self.t,
+            position=s.position,
+            quaternion=_readonly(matrix_to_quat(s.rotation)),
+            rotation=s.rotation,
+            twist=s.twist,
+            cable_lengths=s.lengths,
+            cable_rates=s.rates,
+            tensions=self._tensions,
+        )
+
+    def closure_errors(self) -> Array:
+        """(m,) distance, m, between each leg's end and its platform point (the spherical joints' gaps)."""
+        ends = np.array([leg.lower.getTransform().translation() for leg in self._legs])
+        return np.linalg.norm(ends - self._platform_points_world(), axis=1)
+
+    # -- dynamics ---------------------------------------------------------------------------------
+    def step(self, tensions: np.ndarray) -> StepReport:
+        """Clamp ``tensions`` (m,) to [0, tmax], command them (plus damping) on the legs, integrate one ``dt``."""
+        commanded = np.asarray(tensions, dtype=float)
+        if commanded.shape != (self.robot.m,):
+            raise ValueError(f"expected {self.robot.m} tensions, got shape {commanded.shape}")
+        applied, low, high = clamp_tensions(commanded, self.robot.tmax)
+        s = self._snapshot()
+        damping = self.robot.cable_damping * s.rates
+        c_p = self.robot.passive_damping
+        forces = np.empty((self.robot.m, 3))
+        forces[:, :2] = -c_p * s.leg_velocities[:, :2]  # universal joints
+        forces[:, 2] = -(applied + damping)  # the prismatic axis points away from a_i
+        for leg, f in zip(self._legs, forces, strict=True):
+            leg.skeleton.setForces(f)
+        if c_p > 0.0:  # spherical joints: −c_p (ω_platform − ω_lower) on the platform, the opposite on the leg
+            w = self._body.getAngularVelocity()
+            total = np.zeros(3)
+            for leg in self._legs:
+                torque = c_p * (leg.lower.getAngularVelocity() - w)
+                leg.lower.setExtTorque(-torque, False)
+                total += torque
+            self._body.setExtTorque(total, False)
+        self._world.step()  # semi-implicit Euler + closure impulses; clears forces and commands afterwards
+        self._snap = None
+        self.step_count += 1
+        self._tensions = _readonly(applied)
+        return StepReport(self._tensions, low, high, _readonly(damping))
+
+
+def _frame_with_z(z: Array) -> Array:
+    """A rotation matrix whose third column is the unit vector ``z`` (x from the world axis least along z)."""
+    helper = np.eye(3)[int(np.argmin(np.abs(z)))]
+    x = np.cross(helper, z)
+    x /= np.linalg.norm(x)
+    return np.column_stack((x, np.cross(z, x), z))
