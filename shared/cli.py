@@ -178,6 +178,8 @@ def _scenario_options(f: Callable[..., Any]) -> Callable[..., Any]:
 
 
 def _zenoh_options(f: Callable[..., Any]) -> Callable[..., Any]:
+    f = click.option("--connect-timeout", type=click.FloatRange(min=0.1), default=30.0, show_default=True,
+                     help="seconds a client keeps trying to reach --connect endpoints")(f)
     f = click.option("--zenoh-config", type=click.Path(), default=None, help="Zenoh JSON5 config file (or $ZENOH_CONFIG)")(f)
     f = click.option("--listen", multiple=True, help="Zenoh endpoint to listen on, e.g. tcp/0.0.0.0:7447")(f)
     f = click.option("--connect", multiple=True, help="Zenoh endpoint to connect to, e.g. tcp/192.168.1.10:7447")(f)
@@ -193,7 +195,8 @@ def _load(scenario: str, duration: float | None) -> Any:
 
 
 def _serve(name: str, scenario: str, session_id: str, duration: float | None, zenoh_mode: str,
-           connect: tuple[str, ...], listen: tuple[str, ...], zenoh_config: str | None, **extra: Any) -> None:
+           connect: tuple[str, ...], listen: tuple[str, ...], zenoh_config: str | None, connect_timeout: float,
+           **extra: Any) -> None:
     from cdpr.protocol import Keys
     from cdpr.service import serve
     from cdpr.transport import zenoh_config as make_config
@@ -203,7 +206,7 @@ def _serve(name: str, scenario: str, session_id: str, duration: float | None, ze
         keys = Keys(session_id)
     except ValueError as exc:
         raise InputError(f"--session: {exc}") from None
-    conf = make_config(zenoh_mode, connect, listen, zenoh_config)
+    conf = make_config(zenoh_mode, connect, listen, zenoh_config, connect_timeout)
     if name == "sim":
         from cdpr_sim.node import SimNode
 

@@ -10,6 +10,7 @@ from __future__ import annotations
 import json
 import os
 import queue
+import re
 import signal
 import sys
 import threading
@@ -80,8 +81,21 @@ def open_session(conf: zenoh.Config, what: str) -> zenoh.Session:
     try:
         return zenoh.open(conf)
     except Exception as exc:
-        first = str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__
-        raise InputError(f"{what}: cannot open the Zenoh session: {first}") from None
+        text = str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__
+        text = re.sub(r"\s+at /\S+\.rs:\d+\.?", "", text)  # Rust source locations mean nothing to a user
+        if "Address already in use" in text:
+            where = re.search(r"bound to (\S+?):?\s", text + " ")
+            text = f"{where.group(1) if where else 'the listen endpoint'} is already in use (choose another port)"
+        elif "Unable to connect" in text:
+            text = f"no Zenoh router or peer answered at {', '.join(_endpoints(conf))} ({text})"
+        raise InputError(f"{what}: cannot open the Zenoh session: {text}") from None
+
+
+def _endpoints(conf: zenoh.Config) -> list[str]:
+    try:
+        return list(json.loads(conf.get_json("connect/endpoints")))
+    except Exception:  # a config without explicit endpoints
+        return ["the configured endpoints"]
 
 
 @dataclass(frozen=True, slots=True)

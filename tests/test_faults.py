@@ -2,8 +2,12 @@
 
 from __future__ import annotations
 
+import os
+import re
 import signal
+import socket
 import subprocess
+import threading
 import time
 from collections import defaultdict
 
@@ -12,7 +16,7 @@ import zenoh
 
 from cdpr.protocol import Keys, State, Status
 from cdpr.transport import zenoh_config
-from conftest import CDPR, free_port, last_json_line
+from conftest import CDPR, free_port, last_json_line, processes_mentioning, wait_no_processes
 
 pytestmark = pytest.mark.slow
 
@@ -123,3 +127,92 @@ def test_sim_restart_aborts_the_session(session_id: str) -> None:
     assert s["exit_ok"] is False
     assert up.returncode == 1
     assert "restarted" in err
+
+
+def _child_pid(session_id: str, service: str, timeout: float = 60.0) -> int:
+    deadline = time.monotonic() + timeout
+    while time.monotonic() < deadline:
+        for pid in processes_mentioning(session_id):
+            cmdline = open(f"/proc/{pid}/cmdline", "rb").read().split(b"\0")
+            if b"cdpr" in cmdline and service.encode() in cmdline and b"-m" in cmdline:
+                return pid
+        time.sleep(0.05)
+    raise AssertionError(f"no {service} process for session {session_id}")
+
+
+@pytest.mark.parametrize("service", ["clock", "sim", "trajectory", "controller"])
+def test_sigterm_to_one_service_stops_the_whole_run(session_id: str, service: str) -> None:
+    run = subprocess.Popen(
+        [*CDPR, "run", "caroca_15kg", "--session", session_id],
+        stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+    )
+    progress: list[str] = []
+    threading.Thread(target=lambda: progress.extend(iter(run.stderr.readline, "")), daemon=True).start()
+    pid = _child_pid(session_id, service)
+    deadline = time.monotonic() + 60
+    while time.monotonic() < deadline and not any(re.search(r"step [1-9]\d*/", ln) for ln in progress):
+        time.sleep(0.05)
+    os.kill(pid, signal.SIGTERM)
+    sent = time.monotonic()
+    out = run.stdout.read()
+    run.wait(timeout=15)
+    assert time.monotonic() - sent < 5.0
+    assert run.returncode == 1
+    assert wait_no_processes(session_id, timeout=2.0) == []
+    s = last_json_line(out)
+    assert s["exit_ok"] is False
+    assert s["exit_codes"][service] == 128 + signal.SIGTERM
+    assert any(f"{service} exited with code 143" in ln for ln in progress)
+
+
+def test_start_order_does_not_change_the_states(session_id: str) -> None:
+    """Services started one by one in reverse order give the bit-identical state stream of `cdpr run`."""
+    reference = last_json_line(
+        subprocess.run([*CDPR, "run", "caroca_15kg", "--duration", "0.5", "--session", f"{session_id}r", "--quiet"],
+                       capture_output=True, text=True, timeout=120, check=True).stdout
+    )
+    port = free_port()
+    endpoint = f"tcp/127.0.0.1:{port}"
+    up = subprocess.Popen(
+        [*CDPR, "up", "caroca_15kg", "--duration", "0.5", "--session", session_id, "--listen", endpoint, "--quiet",
+         "--without", "sim", "--without", "trajectory", "--without", "controller"],
+        stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+    )
+    services = []
+    try:
+        for name in ("controller", "trajectory", "sim"):
+            services.append(subprocess.Popen(
+                [*CDPR, name, "caroca_15kg", "--duration", "0.5", "--session", session_id,
+                 "--zenoh-mode", "client", "--connect", endpoint],
+                stderr=subprocess.DEVNULL,
+            ))
+            time.sleep(0.5)
+        out, err = up.communicate(timeout=120)
+        for p in services:
+            p.wait(timeout=30)
+    finally:
+        for p in (up, *services):
+            if p.poll() is None:
+                p.kill()
+    s = last_json_line(out)
+    assert s["exit_ok"] is True, err
+    assert s["state_digest"] == reference["state_digest"]
+
+
+def test_unreachable_endpoint_and_port_in_use_exit_2() -> None:
+    proc = subprocess.run(
+        [*CDPR, "controller", "caroca_15kg", "--zenoh-mode", "client", "--connect", "tcp/127.0.0.1:1",
+         "--connect-timeout", "1"], capture_output=True, text=True, timeout=60,
+    )
+    assert proc.returncode == 2
+    lines = proc.stderr.strip().splitlines()
+    assert len(lines) == 1 and "tcp/127.0.0.1:1" in lines[0] and "Traceback" not in proc.stderr
+    with socket.socket() as busy:
+        busy.bind(("127.0.0.1", 0))
+        busy.listen()
+        port = busy.getsockname()[1]
+        proc = subprocess.run([*CDPR, "up", "caroca_15kg", "--listen", f"tcp/127.0.0.1:{port}"],
+                              capture_output=True, text=True, timeout=60)
+    assert proc.returncode == 2
+    lines = proc.stderr.strip().splitlines()
+    assert len(lines) == 1 and f"tcp/127.0.0.1:{port} is already in use" in lines[0]

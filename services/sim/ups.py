@@ -79,7 +79,7 @@ from cdpr_sim.core import (
     planar_coordinates,
 )
 
-LINK_MASS = 1e-3  # kg, each of the two virtual links of a leg
+LINK_MASS = 1e-4  # kg, each of the two virtual links of a leg
 LINK_RADIUS = 0.005  # m, the links' inertia is a solid sphere's of this radius (the cable's visual radius)
 
 

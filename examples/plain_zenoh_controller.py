@@ -1,0 +1,132 @@
+"""A cdpr controller written from docs/protocol.md alone: Zenoh, msgpack and numpy, no cdpr import.
+
+    python examples/plain_zenoh_controller.py --connect tcp/HOST:7447 [--session ID]
+
+PD on the pose error scaled by the platform's mass and inertia, plus gravity compensation; the
+wrench is turned into tensions by least norm, with the cables that would go slack held at tmin. Port it
+to any language with a Zenoh binding and a msgpack library: nothing else is needed.
+"""
+
+import argparse
+import json
+import queue
+import signal
+import threading
+
+import msgpack
+import numpy as np
+import zenoh
+
+KP, KD, GRAVITY = 400.0, 40.0, 9.81  # 1/s², 1/s (critically damped at 20 rad/s), m/s²
+ROWS = {"spatial": [0, 1, 2, 3, 4, 5], "planar": [0, 2, 4], "point_mass": [0, 1, 2]}
+
+
+def quat_to_matrix(q):
+    x, y, z, w = q
+    return np.array([[1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w)],
+                     [2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w)],
+                     [2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)]])
+
+
+def rotation_vector(R):
+    """log(R) as a rotation vector (fine away from half turns, which a tracking error never is)."""
+    v = 0.5 * np.array([R[2, 1] - R[1, 2], R[0, 2] - R[2, 0], R[1, 0] - R[0, 1]])
+    s, c = np.linalg.norm(v), np.clip((np.trace(R) - 1.0) / 2.0, -1.0, 1.0)
+    return v if s < 1e-12 else v * (np.arctan2(s, c) / s)
+
+
+def tensions(W, w, tmin, tmax):
+    """Least-norm f with W f = w; a cable that would pull less than tmin is held at tmin, and again."""
+    f, free = np.full(W.shape[1], tmin), np.ones(W.shape[1], dtype=bool)
+    while free.sum() >= W.shape[0]:
+        f[free] = np.linalg.pinv(W[:, free]) @ (w - W[:, ~free] @ f[~free])
+        low = np.flatnonzero(free & (f < tmin))
+        if low.size == 0:
+            break
+        worst = low[np.argmin(f[low])]
+        f[worst], free[worst] = tmin, False
+    return np.clip(f, tmin, tmax)
+
+
+class Controller:
+    """The control law, built from the session's `session/info` map."""
+
+    def __init__(self, info):
+        robot = info["robot"]
+        self.a, self.b = np.array(robot["frame_points"]), np.array(robot["platform_points"])
+        self.mass, self.inertia = robot["mass"], np.array(robot["inertia"])
+        self.tmin, self.tmax = robot["tension_limits"]
+        three = info.get("controller", {}).get("variant") == "3dof"
+        self.rows = [0, 1, 2] if three else ROWS[robot["mode"]]
+
+    def __call__(self, state, setpoint):
+        p, R = np.array(state["pose"][:3]), quat_to_matrix(state["pose"][3:])
+        e = np.r_[np.subtract(setpoint["pose"][:3], p), rotation_vector(quat_to_matrix(setpoint["pose"][3:]) @ R.T)]
+        accel = KP * e + KD * np.subtract(setpoint["twist"], state["twist"])
+        w = np.r_[self.mass * accel[:3], R @ self.inertia @ R.T @ accel[3:]] + [0, 0, self.mass * GRAVITY, 0, 0, 0]
+        rb = self.b @ R.T  # platform points in the world frame, relative to the centre of mass
+        d = self.a - p - rb
+        d /= np.linalg.norm(d, axis=1, keepdims=True)  # unit vectors from the platform to the frame
+        W = np.vstack([d.T, np.cross(rb, d).T])  # column i: the wrench of a unit tension in cable i
+        return tensions(W[self.rows], w[self.rows], self.tmin, self.tmax)
+
+
+def main():
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--connect", action="append", default=[], help="router endpoint (tcp/127.0.0.1:7447)")
+    parser.add_argument("--session", default="default")
+    args = parser.parse_args()
+    prefix = f"cdpr/{args.session}"
+    conf = zenoh.Config()
+    conf.insert_json5("mode", '"client"')
+    conf.insert_json5("connect/endpoints", json.dumps(args.connect or ["tcp/127.0.0.1:7447"]))
+    conf.insert_json5("scouting/multicast/enabled", "false")
+    stop = threading.Event()
+    for sig in (signal.SIGINT, signal.SIGTERM):
+        signal.signal(sig, lambda *_: stop.set())
+    inbox = queue.SimpleQueue()
+    with zenoh.open(conf) as session:
+        info = None  # 1. the robot and dt, from the session's clock (retried until it answers)
+        while info is None and not stop.is_set():
+            for reply in session.get(f"{prefix}/session/info", timeout=2.0):
+                if reply.ok is not None:
+                    info = msgpack.unpackb(reply.ok.payload.to_bytes())
+        if info is None:
+            return 130
+        control = Controller(info)
+        # 2. subscribe, then hold the liveliness token
+        subs = [session.declare_subscriber(f"{prefix}/{name}", lambda s, n=name: inbox.put((n, s.payload.to_bytes())))
+                for name in ("sim/state", "trajectory/setpoint", "clock/status")]
+        pub = session.declare_publisher(f"{prefix}/controller/command", congestion_control=zenoh.CongestionControl.BLOCK,
+                                        priority=zenoh.Priority.REAL_TIME, express=True)
+        token = session.liveliness().declare_token(f"{prefix}/alive/controller")
+        states, setpoints, answered = {}, {}, -1
+        while not stop.is_set():  # 3. answer state k once setpoint k is there; answer a repeated state again
+            try:
+                name, payload = inbox.get(timeout=0.2)
+            except queue.Empty:
+                continue
+            msg = msgpack.unpackb(payload)
+            if name == "clock/status":
+                if msg["state"] in ("finished", "aborted"):
+                    break
+                continue
+            k = msg["step"]
+            (states if name == "sim/state" else setpoints)[k] = msg
+            again = name == "sim/state" and k <= answered
+            if k in states and k in setpoints and (k > answered or again):
+                f = control(states[k], setpoints[k])
+                pub.put(msgpack.packb({"v": 1, "step": k, "t": states[k]["t"], "tensions": f.tolist()}))
+                answered = max(answered, k)
+                for book in (states, setpoints):
+                    for old in [j for j in book if j < k]:
+                        del book[old]
+        token.undeclare()
+        for s in subs:
+            s.undeclare()
+        print(f"answered up to step {answered}", flush=True)
+        return 130 if stop.is_set() else 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
