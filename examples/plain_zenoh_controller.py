@@ -61,9 +61,11 @@ class Controller:
 
     def __call__(self, state, setpoint):
         p, R = np.array(state["pose"][:3]), quat_to_matrix(state["pose"][3:])
-        e = np.r_[np.subtract(setpoint["pose"][:3], p), rotation_vector(quat_to_matrix(setpoint["pose"][3:]) @ R.T)]
+        R_d = quat_to_matrix(setpoint["pose"][3:])
+        e = np.r_[np.subtract(setpoint["pose"][:3], p), rotation_vector(R_d @ R.T)]  # position, orientation
         accel = KP * e + KD * np.subtract(setpoint["twist"], state["twist"])
-        w = np.r_[self.mass * accel[:3], R @ self.inertia @ R.T @ accel[3:]] + [0, 0, self.mass * GRAVITY, 0, 0, 0]
+        w = np.r_[self.mass * accel[:3], R @ self.inertia @ R.T @ accel[3:]]  # mass-scaled PD
+        w[2] += self.mass * GRAVITY  # the cables also carry the weight
         rb = self.b @ R.T  # platform points in the world frame, relative to the centre of mass
         d = self.a - p - rb
         d /= np.linalg.norm(d, axis=1, keepdims=True)  # unit vectors from the platform to the frame
@@ -91,16 +93,21 @@ def main():
             for reply in session.get(f"{prefix}/session/info", timeout=2.0):
                 if reply.ok is not None:
                     info = msgpack.unpackb(reply.ok.payload.to_bytes())
+            if info is None:
+                stop.wait(0.5)
         if info is None:
             return 130
         control = Controller(info)
         # 2. subscribe, then hold the liveliness token
-        subs = [session.declare_subscriber(f"{prefix}/{name}", lambda s, n=name: inbox.put((n, s.payload.to_bytes())))
+        def on_sample(sample, name):
+            inbox.put((name, sample.payload.to_bytes()))
+
+        subs = [session.declare_subscriber(f"{prefix}/{name}", lambda s, n=name: on_sample(s, n))
                 for name in ("sim/state", "trajectory/setpoint", "clock/status")]
-        pub = session.declare_publisher(f"{prefix}/controller/command", congestion_control=zenoh.CongestionControl.BLOCK,
-                                        priority=zenoh.Priority.REAL_TIME, express=True)
+        pub = session.declare_publisher(f"{prefix}/controller/command", priority=zenoh.Priority.REAL_TIME,
+                                        congestion_control=zenoh.CongestionControl.BLOCK, express=True)
         token = session.liveliness().declare_token(f"{prefix}/alive/controller")
-        states, setpoints, answered = {}, {}, -1
+        states, setpoints, answered, code = {}, {}, -1, 130
         while not stop.is_set():  # 3. answer state k once setpoint k is there; answer a repeated state again
             try:
                 name, payload = inbox.get(timeout=0.2)
@@ -109,6 +116,7 @@ def main():
             msg = msgpack.unpackb(payload)
             if name == "clock/status":
                 if msg["state"] in ("finished", "aborted"):
+                    code = 0 if msg["state"] == "finished" else 1
                     break
                 continue
             k = msg["step"]
@@ -125,7 +133,7 @@ def main():
         for s in subs:
             s.undeclare()
         print(f"answered up to step {answered}", flush=True)
-        return 130 if stop.is_set() else 0
+        return code
 
 
 if __name__ == "__main__":

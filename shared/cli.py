@@ -384,6 +384,49 @@ def report(file: str, out_dir: str | None) -> None:
     _emit(write_report(file, out_dir))
 
 
+@cli.command()
+@click.option("--minutes", type=click.FloatRange(min=0.01), default=10.0, show_default=True)
+@click.option("--scenario", default="caroca_15kg", show_default=True)
+@click.option("--duration", type=click.FloatRange(min=0.1), default=3.0, show_default=True, help="seconds of sim time per round")
+@click.option("--seed", type=int, default=0, show_default=True)
+def soak(minutes: float, scenario: str, duration: float, seed: int) -> None:
+    """Loop sessions with random controller kills and payload noise; report lost or doubled steps."""
+    from cdpr.scenario import load_scenario
+    from cdpr.soak import run_soak
+
+    load_scenario(scenario)  # fail early, with one line, on a bad scenario
+    sys.exit(run_soak(scenario, minutes, duration, seed))
+
+
+# ------------------------------------------------------------------------------------------------
+# Standalone Zenoh router (docker compose, remote participants)
+
+
+@cli.command()
+@click.option("--listen", multiple=True, help="endpoint to listen on (default tcp/0.0.0.0:7447 unless in the config)")
+@click.option("--zenoh-config", type=click.Path(), default=None,
+              help="Zenoh JSON5 config file (or $ZENOH_CONFIG): TLS, user/password, access control")
+def router(listen: tuple[str, ...], zenoh_config: str | None) -> None:
+    """Run a standalone Zenoh router that sessions' services connect to, until SIGINT/SIGTERM."""
+    import os
+    import time
+
+    from cdpr.transport import StopFlag, log, open_session
+    from cdpr.transport import zenoh_config as make_config
+
+    config_file = zenoh_config or os.environ.get("ZENOH_CONFIG")
+    if not listen and not config_file:
+        listen = ("tcp/0.0.0.0:7447",)
+    conf = make_config("router", listen=listen, config_file=config_file)
+    stop = StopFlag().install()
+    with open_session(conf, "router") as session:
+        where = ", ".join(listen) if listen else f"the endpoints of {config_file}"
+        log("router", f"Zenoh router {session.zid()} listening on {where}")
+        while not stop:
+            time.sleep(0.1)
+    log("router", "stopped")
+
+
 def main(argv: list[str] | None = None) -> None:
     try:
         cli.main(args=argv, prog_name="cdpr", standalone_mode=True)

@@ -14,33 +14,15 @@ from collections import defaultdict
 import pytest
 import zenoh
 
-from cdpr.protocol import Keys, State, Status
+from cdpr.protocol import Keys
+from cdpr.soak import SessionWatcher
 from cdpr.transport import zenoh_config
 from conftest import CDPR, free_port, last_json_line, processes_mentioning, wait_no_processes
 
 pytestmark = pytest.mark.slow
 
 
-class Watcher:
-    """A test-side Zenoh client that records every sim/state payload and the latest clock/status."""
-
-    def __init__(self, session: zenoh.Session, keys: Keys) -> None:
-        self.states: dict[int, list[bytes]] = defaultdict(list)
-        self.status: Status | None = None
-        self.statuses: list[Status] = []
-        self._subs = [
-            session.declare_subscriber(keys.state, self._on_state),
-            session.declare_subscriber(keys.status, self._on_status),
-        ]
-
-    def _on_state(self, sample: zenoh.Sample) -> None:
-        payload = sample.payload.to_bytes()
-        self.states[State.decode(payload).step].append(payload)
-
-    def _on_status(self, sample: zenoh.Sample) -> None:
-        self.status = Status.decode(sample.payload.to_bytes())
-        self.statuses.append(self.status)
-
+class Watcher(SessionWatcher):
     def wait(self, predicate, timeout: float, what: str) -> None:  # type: ignore[no-untyped-def]
         deadline = time.monotonic() + timeout
         while not predicate():
@@ -216,3 +198,13 @@ def test_unreachable_endpoint_and_port_in_use_exit_2() -> None:
     assert proc.returncode == 2
     lines = proc.stderr.strip().splitlines()
     assert len(lines) == 1 and f"tcp/127.0.0.1:{port} is already in use" in lines[0]
+
+
+def test_soak_reports_no_lost_or_doubled_step() -> None:
+    proc = subprocess.run([*CDPR, "soak", "--minutes", "0.2", "--duration", "1", "--seed", "3"],
+                          capture_output=True, text=True, timeout=180)
+    report = last_json_line(proc.stdout)
+    assert proc.returncode == 0, proc.stderr[-2000:]
+    assert report["rounds_ok"] == report["rounds"] >= 1
+    assert report["controller_kills"] >= 1 and report["controller_restarts"] == report["controller_kills"]
+    assert report["lost_steps"] == 0 and report["doubled_steps"] == 0 and report["failures"] == []
