@@ -83,6 +83,8 @@ def main():
     conf.insert_json5("mode", '"client"')
     conf.insert_json5("connect/endpoints", json.dumps(args.connect or ["tcp/127.0.0.1:7447"]))
     conf.insert_json5("scouting/multicast/enabled", "false")
+    conf.insert_json5("connect/timeout_ms", '{"client": 30000}')  # the router may start after us
+    conf.insert_json5("connect/retry", '{"period_init_ms": 100, "period_max_ms": 1000}')
     stop = threading.Event()
     for sig in (signal.SIGINT, signal.SIGTERM):
         signal.signal(sig, lambda *_: stop.set())

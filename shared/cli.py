@@ -363,7 +363,7 @@ def replay(file: str, web: bool, port: int) -> None:
 
 @cli.command()
 @click.argument("robot")
-@click.option("--rrd", type=click.Path(), default=None, help="write to this .rrd file (default: spawn a viewer)")
+@click.option("--rrd", type=click.Path(), default=None, help="write to this .rrd file (else: spawn a viewer)")
 @click.option("--connect-viewer", default=None, help="stream to the Rerun viewer at this gRPC URL")
 def show(robot: str, rrd: str | None, connect_viewer: str | None) -> None:
     """Draw ROBOT (a name or a YAML path) at its home pose: frame, numbered anchors, platform, cables."""

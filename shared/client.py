@@ -366,6 +366,7 @@ class _ControllerNode(Node):
                 self.setpoints[sp.step] = sp
                 k, again = sp.step, False
         except ProtocolError as exc:
+            self.count(f"bad_{event.kind}s")
             self.warn(f"bad_{event.kind}", f"dropped a bad {event.kind} message: {exc}")
             return
         state_k, setpoint_k = self.states.get(k), self.setpoints.get(k)

@@ -21,11 +21,10 @@ from typing import Any
 import numpy as np
 import rerun as rr
 import rerun.blueprint as rrb
-from numpy.typing import ArrayLike, NDArray
-
 from cdpr.errors import InputError
 from cdpr.robot import Robot
 from cdpr.rotation import matrix_to_quat
+from numpy.typing import ArrayLike, NDArray
 
 APP_ID = "cdpr"
 RECORDING_ID_ENV = "CDPR_RECORDING_ID"  # forces the recording id (e.g. to merge several recorders)
@@ -137,7 +136,7 @@ def tension_colors(tensions: ArrayLike, tmin: float, tmax: float) -> NDArray[np.
     lo = np.minimum(np.floor(u).astype(int), len(_SCALE) - 2)
     frac = (u - lo)[..., None]
     rgb = _SCALE[lo] * (1.0 - frac) + _SCALE[lo + 1] * frac
-    alpha = np.full(f.shape + (1,), 255.0)
+    alpha = np.full((*f.shape, 1), 255.0)
     return np.concatenate([np.rint(rgb), alpha], axis=-1).astype(np.uint8)
 
 
@@ -291,14 +290,18 @@ def log_scene(rec: Recording, robot: Robot, ghost: bool = True) -> None:
     lo, hi = np.asarray(robot.frame_min), np.asarray(robot.frame_max)
     rec.log(
         FRAME,
-        rr.Boxes3D(mins=[lo], sizes=[hi - lo], colors=[_FRAME_COLOR], fill_mode=rr.components.FillMode.MajorWireframe),
+        rr.Boxes3D(
+            mins=[lo], sizes=[hi - lo], colors=[_FRAME_COLOR], fill_mode=rr.components.FillMode.MajorWireframe
+        ),
         static=True,
     )
     a, a_labels = anchor_labels(robot.frame_points)
     rec.log(FRAME_ANCHORS, rr.Points3D(a, radii=0.04, colors=[_ANCHOR_COLOR], labels=a_labels), static=True)
     rec.log(PLATFORM_SHAPE, _shape(robot, _PLATFORM_COLOR), static=True)
     b, b_labels = anchor_labels(robot.platform_points)
-    rec.log(PLATFORM_ANCHORS, rr.Points3D(b, radii=0.025, colors=[_ANCHOR_COLOR], labels=b_labels), static=True)
+    rec.log(
+        PLATFORM_ANCHORS, rr.Points3D(b, radii=0.025, colors=[_ANCHOR_COLOR], labels=b_labels), static=True
+    )
     rec.log(CABLES, rr.LineStrips3D.from_fields(radii=[_CABLE_RADIUS]), static=True)
     if ghost:
         rec.log(DESIRED_SHAPE, _shape(robot, _GHOST_COLOR), static=True)
@@ -306,13 +309,18 @@ def log_scene(rec: Recording, robot: Robot, ghost: bool = True) -> None:
 
 
 def log_planned_path(rec: Recording, points: ArrayLike) -> None:
-    rec.log(PLANNED_PATH, rr.LineStrips3D([np.asarray(points, dtype=float)], radii=0.006, colors=[_PLANNED_COLOR]),
-            static=True)
+    rec.log(
+        PLANNED_PATH,
+        rr.LineStrips3D([np.asarray(points, dtype=float)], radii=0.006, colors=[_PLANNED_COLOR]),
+        static=True,
+    )
 
 
 def log_session(rec: Recording, info: Mapping[str, Any]) -> None:
     """Static JSON description of the session (what ``cdpr report`` needs: dt, cables, limits...)."""
-    rec.log(SESSION, rr.TextDocument(json.dumps(dict(info), indent=2), media_type=rr.MediaType.TEXT), static=True)
+    rec.log(
+        SESSION, rr.TextDocument(json.dumps(dict(info), indent=2), media_type=rr.MediaType.TEXT), static=True
+    )
 
 
 def log_series_styles(rec: Recording, m: int) -> None:
@@ -335,8 +343,18 @@ def log_series_styles(rec: Recording, m: int) -> None:
 
 def tension_palette(m: int) -> list[tuple[int, int, int]]:
     """Distinct colours for m cable series (Tableau 10, repeated)."""
-    base = [(31, 119, 180), (255, 127, 14), (44, 160, 44), (214, 39, 40), (148, 103, 189),
-            (140, 86, 75), (227, 119, 194), (127, 127, 127), (188, 189, 34), (23, 190, 207)]
+    base = [
+        (31, 119, 180),
+        (255, 127, 14),
+        (44, 160, 44),
+        (214, 39, 40),
+        (148, 103, 189),
+        (140, 86, 75),
+        (227, 119, 194),
+        (127, 127, 127),
+        (188, 189, 34),
+        (23, 190, 207),
+    ]
     return [base[i % len(base)] for i in range(m)]
 
 
@@ -363,12 +381,21 @@ def send_scalars(rec: Recording, path: str, steps: ArrayLike, times: ArrayLike, 
     rec.send_columns(path, indexes=time_columns(steps, times), columns=cols)
 
 
-def send_text(rec: Recording, path: str, steps: Sequence[int], times: Sequence[float], texts: Sequence[str],
-              level: str = "INFO") -> None:
+def send_text(
+    rec: Recording,
+    path: str,
+    steps: Sequence[int],
+    times: Sequence[float],
+    texts: Sequence[str],
+    level: str = "INFO",
+) -> None:
     if not texts:
         return
-    rec.send_columns(path, indexes=time_columns(steps, times),
-                     columns=rr.TextLog.columns(text=list(texts), level=[level] * len(texts)))
+    rec.send_columns(
+        path,
+        indexes=time_columns(steps, times),
+        columns=rr.TextLog.columns(text=list(texts), level=[level] * len(texts)),
+    )
 
 
 def send_poses(rec: Recording, path: str, steps: ArrayLike, times: ArrayLike, poses: ArrayLike) -> None:
@@ -376,29 +403,38 @@ def send_poses(rec: Recording, path: str, steps: ArrayLike, times: ArrayLike, po
     p = np.asarray(poses, dtype=float).reshape(-1, 7)
     if p.shape[0] == 0:
         return
-    rec.send_columns(path, indexes=time_columns(steps, times),
-                     columns=rr.Transform3D.columns(translation=p[:, :3], quaternion=p[:, 3:]))
+    rec.send_columns(
+        path,
+        indexes=time_columns(steps, times),
+        columns=rr.Transform3D.columns(translation=p[:, :3], quaternion=p[:, 3:]),
+    )
 
 
-def send_cables(rec: Recording, robot: Robot, steps: ArrayLike, times: ArrayLike, poses: ArrayLike,
-                tensions: ArrayLike) -> None:
+def send_cables(
+    rec: Recording, robot: Robot, steps: ArrayLike, times: ArrayLike, poses: ArrayLike, tensions: ArrayLike
+) -> None:
     """Cable line strips for n poses (n, 7), coloured by the tensions (n, m) on the tmin..tmax scale."""
     p = np.asarray(poses, dtype=float).reshape(-1, 7)
     n, m = p.shape[0], robot.m
     if n == 0:
         return
     strips = cable_strips(robot, p[:, :3], p[:, 3:]).reshape(n * m, 2, 3)
-    colors = tension_colors(np.asarray(tensions, dtype=float).reshape(n, m), robot.tmin, robot.tmax).reshape(n * m, 4)
+    colors = tension_colors(np.asarray(tensions, dtype=float).reshape(n, m), robot.tmin, robot.tmax).reshape(
+        n * m, 4
+    )
     cols = rr.LineStrips3D.columns(strips=strips, colors=colors).partition(np.full(n, m))
     rec.send_columns(CABLES, indexes=time_columns(steps, times), columns=cols)
 
 
-def send_path(rec: Recording, steps: Sequence[int], times: Sequence[float],
-              paths: Sequence[NDArray[np.float64]]) -> None:
+def send_path(
+    rec: Recording, steps: Sequence[int], times: Sequence[float], paths: Sequence[NDArray[np.float64]]
+) -> None:
     """The travelled path: row j is the whole path so far, a (k_j, 3) line strip."""
     if not paths:
         return
-    cols = rr.LineStrips3D.columns(strips=[np.asarray(p, dtype=float) for p in paths]).partition(np.ones(len(paths), int))
+    cols = rr.LineStrips3D.columns(strips=[np.asarray(p, dtype=float) for p in paths]).partition(
+        np.ones(len(paths), int)
+    )
     rec.send_columns(PATH, indexes=time_columns(steps, times), columns=cols)
 
 
@@ -408,8 +444,9 @@ def show_robot(robot: Robot, rrd: str | Path | None = None, viewer: str | None =
     Writes ``rrd`` if given, streams to ``viewer`` if given, else spawns a viewer.
     """
     rec_id = f"show-{robot.name}-{uuid.uuid4().hex[:8]}"
-    rec = Recording(rec_id, rrd=rrd, spawn=rrd is None and viewer is None, viewer=viewer,
-                    blueprint=scene_blueprint())
+    rec = Recording(
+        rec_id, rrd=rrd, spawn=rrd is None and viewer is None, viewer=viewer, blueprint=scene_blueprint()
+    )
     rec.send_recording_name(f"{robot.name} at home")
     log_scene(rec, robot, ghost=False)
     home = np.concatenate([robot.home_position, matrix_to_quat(robot.home_rotation)])
@@ -417,13 +454,20 @@ def show_robot(robot: Robot, rrd: str | Path | None = None, viewer: str | None =
     strips = cable_strips(robot, home[None, :3], home[None, 3:])[0]
     rec.log(
         CABLES,
-        rr.LineStrips3D(strips, colors=[(90, 90, 90, 255)] * robot.m, labels=[f"cable {i}" for i in range(robot.m)]),
+        rr.LineStrips3D(
+            strips, colors=[(90, 90, 90, 255)] * robot.m, labels=[f"cable {i}" for i in range(robot.m)]
+        ),
         static=True,
     )
     log_session(rec, {"robot": robot.summary(), "recording_id": rec_id})
     problems = rec.close()
-    return {"robot": robot.name, "cables": robot.m, "rrd": None if rrd is None else str(rrd), "recording_id": rec_id,
-            "problems": problems}
+    return {
+        "robot": robot.name,
+        "cables": robot.m,
+        "rrd": None if rrd is None else str(rrd),
+        "recording_id": rec_id,
+        "problems": problems,
+    }
 
 
 def rerun_binary() -> str | None:
@@ -436,7 +480,9 @@ def rerun_binary() -> str | None:
     return str(exe) if exe.is_file() else None
 
 
-def viewer_command(path: str | Path, web: bool = False, web_port: int = 9090, grpc_port: int = 9876) -> list[str]:
+def viewer_command(
+    path: str | Path, web: bool = False, web_port: int = 9090, grpc_port: int = 9876
+) -> list[str]:
     """The ``rerun`` command line (the viewer shipped with rerun-sdk) that opens ``path``.
 
     The binary is called directly when found (``python -m rerun`` would not pass signals on to it).
@@ -447,10 +493,20 @@ def viewer_command(path: str | Path, web: bool = False, web_port: int = 9090, gr
     cmd = [exe] if exe else [sys.executable, "-m", "rerun"]
     cmd.append(str(path))
     if web:
-        cmd += ["--web-viewer", "--web-viewer-port", str(web_port), "--port", str(grpc_port), "--renderer", "webgl"]
+        cmd += [
+            "--web-viewer",
+            "--web-viewer-port",
+            str(web_port),
+            "--port",
+            str(grpc_port),
+            "--renderer",
+            "webgl",
+        ]
     return cmd
 
 
 def web_viewer_url(web_port: int, grpc_port: int) -> str:
-    return (f"http://127.0.0.1:{web_port}/?url=rerun%2Bhttp%3A%2F%2F127.0.0.1%3A{grpc_port}%2Fproxy"
-            "&renderer=webgl")
+    return (
+        f"http://127.0.0.1:{web_port}/?url=rerun%2Bhttp%3A%2F%2F127.0.0.1%3A{grpc_port}%2Fproxy"
+        "&renderer=webgl"
+    )

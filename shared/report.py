@@ -16,12 +16,11 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-from numpy.typing import NDArray
-
-from cdpr import recording as R
+from cdpr import recording
 from cdpr.errors import InputError
 from cdpr.metrics import RunMetrics
 from cdpr.protocol import Command, Setpoint, State
+from numpy.typing import NDArray
 
 FIGURE_SIZE = (12.0, 8.0)  # inches; at FIGURE_DPI this is the PNG's size in pixels
 FIGURE_DPI = 100
@@ -93,7 +92,9 @@ def read_recording(path: str | Path) -> RecordingData:
         blueprints = len(reader.blueprints())
         chunks = reader.stream().to_chunks() if recordings else []
     except Exception as exc:  # the reader raises various errors on a file that is not an .rrd
-        raise InputError(f"{p}: not a readable Rerun recording ({str(exc).splitlines()[0] if str(exc) else exc})") from None
+        raise InputError(
+            f"{p}: not a readable Rerun recording ({str(exc).splitlines()[0] if str(exc) else exc})"
+        ) from None
     if not recordings:
         raise InputError(f"{p}: the file holds no recording")
     session: dict[str, Any] | None = None
@@ -102,22 +103,25 @@ def read_recording(path: str | Path) -> RecordingData:
         entity = chunk.entity_path.lstrip("/")
         batch = chunk.to_record_batch()
         names = batch.schema.names
-        if entity == R.SESSION and R.TEXT_DOCUMENT_COLUMN in names:
-            session = json.loads(batch.column(R.TEXT_DOCUMENT_COLUMN)[0].as_py()[0])
+        if entity == recording.SESSION and recording.TEXT_DOCUMENT_COLUMN in names:
+            session = json.loads(batch.column(recording.TEXT_DOCUMENT_COLUMN)[0].as_py()[0])
             continue
-        if R.SCALARS_COLUMN not in names or R.STEP not in names or chunk.num_rows == 0:
+        if recording.SCALARS_COLUMN not in names or recording.STEP not in names or chunk.num_rows == 0:
             continue
-        col = batch.column(R.SCALARS_COLUMN)
+        col = batch.column(recording.SCALARS_COLUMN)
         lengths = pc.list_value_length(col).fill_null(0).to_numpy(zero_copy_only=False)
         k = int(lengths.max())
         rows = lengths == k
         values = col.filter(pa.array(rows)).flatten().to_numpy(zero_copy_only=False).reshape(-1, k)
-        step = batch.column(R.STEP).to_numpy()[rows]
-        t = batch.column(R.SIM_TIME).cast(pa.int64()).to_numpy()[rows] * 1e-9 if R.SIM_TIME in names \
+        step = batch.column(recording.STEP).to_numpy()[rows]
+        t = (
+            batch.column(recording.SIM_TIME).cast(pa.int64()).to_numpy()[rows] * 1e-9
+            if recording.SIM_TIME in names
             else np.full(int(rows.sum()), np.nan)
+        )
         parts.setdefault(entity, []).append((step.astype(np.int64), t, values.astype(float)))
     if session is None:
-        raise InputError(f"{p}: not a cdpr recording (no /{R.SESSION} description)")
+        raise InputError(f"{p}: not a cdpr recording (no /{recording.SESSION} description)")
     series = {name: _series(v) for name, v in parts.items()}
     return RecordingData(str(p), recordings[0].recording_id, session, series, blueprints)
 
@@ -127,33 +131,48 @@ def metrics_from(data: RecordingData) -> RunMetrics:
     dt = float(data.session["dt"])
     m = int(data.session["cables"])
     metrics = RunMetrics()
-    pos = data.get(R.ACTUAL_POSITION)
+    pos = data.get(recording.ACTUAL_POSITION)
     steps = pos.step
     if len(steps):
         try:
-            quat = data.get(R.ACTUAL_QUATERNION).at(steps)
-            twist = data.get(R.ACTUAL_TWIST).at(steps)
-            lengths = data.get(R.CABLE_LENGTHS).at(steps)
-            clamped = data.get(R.CLAMPED).at(steps)[:, 0]
+            quat = data.get(recording.ACTUAL_QUATERNION).at(steps)
+            twist = data.get(recording.ACTUAL_TWIST).at(steps)
+            lengths = data.get(recording.CABLE_LENGTHS).at(steps)
+            clamped = data.get(recording.CLAMPED).at(steps)[:, 0]
             later = steps[steps > 0]
             tensions = np.zeros((len(steps), m))
-            tensions[steps > 0] = np.column_stack([data.get(R.tension_series(i)).at(later)[:, 0] for i in range(m)])
+            tensions[steps > 0] = np.column_stack(
+                [data.get(recording.tension_series(i)).at(later)[:, 0] for i in range(m)]
+            )
         except KeyError as exc:
-            raise InputError(f"{data.path}: incomplete recording: no state data for step {exc.args[0]}") from None
+            raise InputError(
+                f"{data.path}: incomplete recording: no state data for step {exc.args[0]}"
+            ) from None
         for j, k in enumerate(steps.tolist()):
-            state = State(k, k * dt, (*pos.values[j].tolist(), *quat[j].tolist()), tuple(twist[j].tolist()),
-                          tuple(lengths[j].tolist()), tuple(tensions[j].tolist()), int(clamped[j]))
+            state = State(
+                k,
+                k * dt,
+                (*pos.values[j].tolist(), *quat[j].tolist()),
+                tuple(twist[j].tolist()),
+                tuple(lengths[j].tolist()),
+                tuple(tensions[j].tolist()),
+                int(clamped[j]),
+            )
             metrics.add_state(state, state.encode())
-    desired = data.get(R.DESIRED_POSITION)
+    desired = data.get(recording.DESIRED_POSITION)
     if len(desired.step):
         try:
-            dq = data.get(R.DESIRED_QUATERNION).at(desired.step)
+            dq = data.get(recording.DESIRED_QUATERNION).at(desired.step)
         except KeyError as exc:
-            raise InputError(f"{data.path}: incomplete recording: no setpoint data for step {exc.args[0]}") from None
+            raise InputError(
+                f"{data.path}: incomplete recording: no setpoint data for step {exc.args[0]}"
+            ) from None
         zeros = (0.0,) * 6
         for j, k in enumerate(desired.step.tolist()):
-            metrics.add_setpoint(Setpoint(k, k * dt, (*desired.values[j].tolist(), *dq[j].tolist()), zeros, zeros))
-    feasible = data.get(R.COMMAND_FEASIBLE)
+            metrics.add_setpoint(
+                Setpoint(k, k * dt, (*desired.values[j].tolist(), *dq[j].tolist()), zeros, zeros)
+            )
+    feasible = data.get(recording.COMMAND_FEASIBLE)
     for k, f in zip(feasible.step.tolist(), feasible.values[:, 0].tolist(), strict=True):
         metrics.add_command(Command(k, k * dt, (), bool(f >= 0.5)))
     return metrics
@@ -164,7 +183,9 @@ def summarize(data: RecordingData) -> dict[str, Any]:
     metrics = metrics_from(data)
     info = data.session
     last = max(metrics.last_step, 0)
-    tension_series = sum(1 for i in range(int(info["cables"])) if len(data.get(R.tension_series(i)).step))
+    tension_series = sum(
+        1 for i in range(int(info["cables"])) if len(data.get(recording.tension_series(i)).step)
+    )
     return {
         "recording": data.path,
         "recording_id": data.recording_id,
@@ -183,7 +204,7 @@ def summarize(data: RecordingData) -> dict[str, Any]:
 
 def _plot_xyz(ax: Any, s: Series, title: str, unit: str) -> None:
     styles = ("-", "--", "-.")  # x and y often coincide (diagonal moves): dashes keep both visible
-    for j, (name, rgb) in enumerate(zip(R.AXES, R.AXIS_COLORS, strict=True)):
+    for j, (name, rgb) in enumerate(zip(recording.AXES, recording.AXIS_COLORS, strict=True)):
         if s.values.shape[1] > j and len(s.step):
             ax.plot(s.t, s.values[:, j], color=np.array(rgb) / 255.0, linestyle=styles[j], label=name)
     ax.set_title(title)
@@ -204,20 +225,22 @@ def plot_tracking(data: RecordingData, out: str | Path) -> None:
     info = data.session
     m, tmin, tmax = int(info["cables"]), float(info["tmin"]), float(info["tmax"])
     fig, axes = plt.subplots(2, 2, figsize=FIGURE_SIZE, dpi=FIGURE_DPI)
-    _plot_xyz(axes[0, 0], data.get(R.DESIRED_POSITION), "Desired position", "m")
-    _plot_xyz(axes[0, 1], data.get(R.ACTUAL_POSITION), "Actual position", "m")
-    _plot_xyz(axes[1, 0], data.get(R.POSITION_ERROR_AXES), "Position error (desired − actual)", "m")
-    norm = data.get(R.POSITION_ERROR_NORM)
+    _plot_xyz(axes[0, 0], data.get(recording.DESIRED_POSITION), "Desired position", "m")
+    _plot_xyz(axes[0, 1], data.get(recording.ACTUAL_POSITION), "Actual position", "m")
+    _plot_xyz(axes[1, 0], data.get(recording.POSITION_ERROR_AXES), "Position error (desired − actual)", "m")
+    norm = data.get(recording.POSITION_ERROR_NORM)
     if len(norm.step):
         axes[1, 0].plot(norm.t, norm.values[:, 0], color="black", linestyle="--", linewidth=0.8, label="norm")
         axes[1, 0].legend(loc="best", fontsize="small")
     ax = axes[1, 1]
-    palette = R.tension_palette(m)
+    palette = recording.tension_palette(m)
     lo, hi = np.inf, -np.inf
     for i in range(m):
-        s = data.get(R.tension_series(i))
+        s = data.get(recording.tension_series(i))
         if len(s.step):
-            ax.plot(s.t, s.values[:, 0], color=np.array(palette[i]) / 255.0, linewidth=0.9, label=f"cable {i}")
+            ax.plot(
+                s.t, s.values[:, 0], color=np.array(palette[i]) / 255.0, linewidth=0.9, label=f"cable {i}"
+            )
             lo, hi = min(lo, float(s.values.min())), max(hi, float(s.values.max()))
     if np.isfinite(lo):
         pad = max(0.05 * (hi - lo), 1e-6 * max(abs(hi), 1.0), 0.5)
@@ -242,8 +265,8 @@ def plot_orientation(data: RecordingData, out: str | Path) -> None:
     import matplotlib.pyplot as plt
 
     fig, ax = plt.subplots(1, 1, figsize=(FIGURE_SIZE[0], FIGURE_SIZE[1] / 2), dpi=FIGURE_DPI)
-    _plot_xyz(ax, data.get(R.ORIENTATION_ERROR_AXES), "Orientation error (rotation vector)", "rad")
-    norm = data.get(R.ORIENTATION_ERROR_NORM)
+    _plot_xyz(ax, data.get(recording.ORIENTATION_ERROR_AXES), "Orientation error (rotation vector)", "rad")
+    norm = data.get(recording.ORIENTATION_ERROR_NORM)
     if len(norm.step):
         ax.plot(norm.t, norm.values[:, 0], color="black", linestyle="--", linewidth=0.8, label="norm")
         ax.legend(loc="best", fontsize="small")

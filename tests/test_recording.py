@@ -20,9 +20,7 @@ from typing import Any
 import numpy as np
 import pyarrow as pa
 import pytest
-from rerun.chunk import RrdReader
-
-from cdpr import recording as R
+from cdpr import recording
 from cdpr.kinematics import inverse_kinematics
 from cdpr.metrics import RunMetrics
 from cdpr.protocol import Command, Setpoint, State, Status
@@ -30,6 +28,7 @@ from cdpr.robot import load_robot, shipped_robots
 from cdpr.rotation import matrix_to_quat, orientation_error, quat_to_matrix, rotvec_to_matrix
 from cdpr_recorder.core import Params, RecorderCore, flatten_stats, orientation_errors
 from conftest import CDPR, cdpr, last_json_line, processes_mentioning, wait_no_processes
+from rerun.chunk import RrdReader
 
 # --------------------------------------------------------------------------------------------------
 # Pure helpers
@@ -63,13 +62,29 @@ def _messages(n: int, m: int, seed: int) -> tuple[list[State], list[Setpoint], l
         q = matrix_to_quat(_random_rotation(rng, 0.01 * rng.uniform()))
         pos = rng.normal(size=3)
         tensions = tuple(rng.uniform(1, 100, m)) if k else (0.0,) * m
-        states.append(State(k, k * 0.001, (*pos, *q), tuple(rng.normal(size=6)), tuple(rng.uniform(1, 5, m)),
-                            tensions, k // 4))
+        states.append(
+            State(
+                k,
+                k * 0.001,
+                (*pos, *q),
+                tuple(rng.normal(size=6)),
+                tuple(rng.uniform(1, 5, m)),
+                tensions,
+                k // 4,
+            )
+        )
     for k in range(n):
         q = matrix_to_quat(_random_rotation(rng, 0.01 * rng.uniform()))
         setpoints.append(Setpoint(k, k * 0.001, (*rng.normal(size=3), *q), (0.0,) * 6, (0.0,) * 6))
-        commands.append(Command(k, k * 0.001, tuple(rng.uniform(1, 100, m)), feasible=k % 7 != 3,
-                                status="ok" if k % 7 != 3 else "infeasible"))
+        commands.append(
+            Command(
+                k,
+                k * 0.001,
+                tuple(rng.uniform(1, 100, m)),
+                feasible=k % 7 != 3,
+                status="ok" if k % 7 != 3 else "infeasible",
+            )
+        )
     return states, setpoints, commands
 
 
@@ -153,7 +168,13 @@ def test_core_rejects_the_wrong_number_of_cables() -> None:
 
 def test_status_rows_keep_the_numbers_and_mark_changes() -> None:
     core = RecorderCore(Params(cables=1))
-    stats = {"rate": 512.5, "late_ticks": 2, "faults": {"sim": {"clamped_commands": 3}}, "note": "x", "ok": True}
+    stats = {
+        "rate": 512.5,
+        "late_ticks": 2,
+        "faults": {"sim": {"clamped_commands": 3}},
+        "note": "x",
+        "ok": True,
+    }
     core.add_status(Status("waiting", 0, 0.0, 10, ("sim",), "waiting for sim", stats))
     core.add_status(Status("waiting", 0, 0.0, 10, ("sim",), "waiting for sim", stats))
     core.add_status(Status("running", 4, 0.004, 10, (), "", {"rate": float("nan")}))
@@ -172,7 +193,7 @@ def test_cable_strips_join_the_kinematics_attach_points(name: str) -> None:
     for _ in range(4):
         Rm = _random_rotation(rng, 0.2) if robot.mode == "spatial" else np.eye(3)
         poses.append((robot.home_position + 0.1 * rng.normal(size=3) * (robot.mode != "planar"), Rm))
-    strips = R.cable_strips(robot, [p for p, _ in poses], [matrix_to_quat(r) for _, r in poses])
+    strips = recording.cable_strips(robot, [p for p, _ in poses], [matrix_to_quat(r) for _, r in poses])
     assert strips.shape == (4, robot.m, 2, 3)
     for j, (p, Rm) in enumerate(poses):
         k = inverse_kinematics(robot, p, Rm)
@@ -182,28 +203,33 @@ def test_cable_strips_join_the_kinematics_attach_points(name: str) -> None:
 
 
 def test_tension_colors_run_from_tmin_to_tmax() -> None:
-    c = R.tension_colors([-5.0, 10.0, 55.0, 100.0, 1e9], 10.0, 100.0)
-    assert c.dtype == np.uint8 and c.shape == (5, 4)
-    assert np.array_equal(c[0], c[1]) and np.array_equal(c[3], c[4])  # clipped at both ends
-    assert c[1].tolist() == [68, 1, 84, 255] and c[3].tolist() == [253, 231, 37, 255]
-    ramp = R.tension_colors(np.linspace(10, 100, 50), 10.0, 100.0).astype(int)
+    c = recording.tension_colors([-5.0, 10.0, 55.0, 100.0, 1e9], 10.0, 100.0)
+    assert c.dtype == np.uint8
+    assert c.shape == (5, 4)
+    assert np.array_equal(c[0], c[1])
+    assert np.array_equal(c[3], c[4])
+    assert c[1].tolist() == [68, 1, 84, 255]
+    assert c[3].tolist() == [253, 231, 37, 255]
+    ramp = recording.tension_colors(np.linspace(10, 100, 50), 10.0, 100.0).astype(int)
     assert np.all(np.diff(ramp[:, 1]) >= 0)  # green rises monotonically along the scale
-    assert R.tension_colors(np.zeros((3, 8)), 0.0, 1.0).shape == (3, 8, 4)
+    assert recording.tension_colors(np.zeros((3, 8)), 0.0, 1.0).shape == (3, 8, 4)
 
 
 def test_anchor_labels_group_shared_frame_points() -> None:
     robot = load_robot("caroca")
-    pts, labels = R.anchor_labels(robot.frame_points)
+    pts, labels = recording.anchor_labels(robot.frame_points)
     assert labels == ["0,1", "2,3", "4,5", "6,7"]
     assert np.array_equal(pts, robot.frame_points[::2])
-    pts, labels = R.anchor_labels(robot.platform_points)
+    pts, labels = recording.anchor_labels(robot.platform_points)
     assert labels == [str(i) for i in range(8)]
 
 
 def test_recording_id_is_unique_per_run_unless_forced() -> None:
-    a, b = R.recording_id("s1", env={}), R.recording_id("s1", env={})
-    assert a != b and a.startswith("s1-") and b.startswith("s1-")
-    assert R.recording_id("s1", env={R.RECORDING_ID_ENV: "shared"}) == "shared"
+    a, b = recording.recording_id("s1", env={}), recording.recording_id("s1", env={})
+    assert a != b
+    assert a.startswith("s1-")
+    assert b.startswith("s1-")
+    assert recording.recording_id("s1", env={recording.RECORDING_ID_ENV: "shared"}) == "shared"
 
 
 # --------------------------------------------------------------------------------------------------
@@ -218,12 +244,21 @@ def _scalars(path: Path, entity: str) -> tuple[np.ndarray, np.ndarray, np.ndarra
             continue
         rb = chunk.to_record_batch()
         rows = rb.column("Scalars:scalars").to_pylist()
-        parts.append((rb.column("step").to_numpy(), rb.column("sim_time").cast(pa.int64()).to_numpy(),
-                      np.array(rows, dtype=float)))
+        parts.append(
+            (
+                rb.column("step").to_numpy(),
+                rb.column("sim_time").cast(pa.int64()).to_numpy(),
+                np.array(rows, dtype=float),
+            )
+        )
     assert parts, f"no {entity} in {path}"
     steps = np.concatenate([p[0] for p in parts])
     order = np.argsort(steps)
-    return steps[order], np.concatenate([p[1] for p in parts])[order], np.concatenate([p[2] for p in parts])[order]
+    return (
+        steps[order],
+        np.concatenate([p[1] for p in parts])[order],
+        np.concatenate([p[2] for p in parts])[order],
+    )
 
 
 def _rows(path: Path, entity: str, column: str, static: bool = False) -> list[tuple[int | None, Any]]:
@@ -239,14 +274,15 @@ def _rows(path: Path, entity: str, column: str, static: bool = False) -> list[tu
 
 
 def _rerun(*args: str) -> subprocess.CompletedProcess[str]:
-    exe = R.rerun_binary()
+    exe = recording.rerun_binary()
     cmd = [exe] if exe else [sys.executable, "-m", "rerun"]
     return subprocess.run([*cmd, *args], capture_output=True, text=True, timeout=120, check=False)
 
 
 def _png_size(path: Path) -> tuple[int, int]:
     head = path.read_bytes()[:24]
-    assert head[:8] == b"\x89PNG\r\n\x1a\n" and head[12:16] == b"IHDR"
+    assert head[:8] == b"\x89PNG\r\n\x1a\n"
+    assert head[12:16] == b"IHDR"
     return struct.unpack(">II", head[16:24])
 
 
@@ -260,8 +296,18 @@ def recorded(tmp_path_factory: pytest.TempPathFactory) -> Iterator[tuple[dict[st
     """One real 0.5 s run with --rrd, shared by the tests below."""
     sid = f"t{uuid.uuid4().hex[:12]}"
     rrd = tmp_path_factory.mktemp("rec") / "run.rrd"
-    proc = cdpr("run", "caroca_15kg", "--duration", str(DURATION), "--session", sid, "--rrd", str(rrd), "--quiet",
-                timeout=180)
+    proc = cdpr(
+        "run",
+        "caroca_15kg",
+        "--duration",
+        str(DURATION),
+        "--session",
+        sid,
+        "--rrd",
+        str(rrd),
+        "--quiet",
+        timeout=180,
+    )
     assert proc.returncode == 0, f"{proc.stdout[-2000:]}\n{proc.stderr[-3000:]}"
     yield last_json_line(proc.stdout), rrd
     assert not wait_no_processes(sid, timeout=10.0)
@@ -270,36 +316,45 @@ def recorded(tmp_path_factory: pytest.TempPathFactory) -> Iterator[tuple[dict[st
 @pytest.mark.slow
 def test_the_recording_holds_the_whole_state_stream(recorded: tuple[dict[str, Any], Path]) -> None:
     summary, rrd = recorded
-    assert summary["exit_ok"] is True and summary["exit_codes"]["recorder"] == 0
+    assert summary["exit_ok"] is True
+    assert summary["exit_codes"]["recorder"] == 0
     assert summary["steps"] == STEPS
     entries = RrdReader(str(rrd)).recordings()
     assert len(entries) == 1
     assert entries[0].application_id == "cdpr"
     assert entries[0].recording_id.startswith(summary["session"] + "-")
-    steps, ns, pos = _scalars(rrd, R.ACTUAL_POSITION)
+    steps, ns, pos = _scalars(rrd, recording.ACTUAL_POSITION)
     assert steps.tolist() == list(range(STEPS + 1))
     assert np.array_equal(ns, np.round(steps * DT * 1e9).astype(np.int64))  # sim_time is the message's t
-    _, _, quat = _scalars(rrd, R.ACTUAL_QUATERNION)
-    _, _, twist = _scalars(rrd, R.ACTUAL_TWIST)
-    _, _, lengths = _scalars(rrd, R.CABLE_LENGTHS)
-    _, _, clamped = _scalars(rrd, R.CLAMPED)
+    _, _, quat = _scalars(rrd, recording.ACTUAL_QUATERNION)
+    _, _, twist = _scalars(rrd, recording.ACTUAL_TWIST)
+    _, _, lengths = _scalars(rrd, recording.CABLE_LENGTHS)
+    _, _, clamped = _scalars(rrd, recording.CLAMPED)
     tensions = np.zeros((STEPS + 1, 8))
     for i in range(8):
-        k, _, v = _scalars(rrd, R.tension_series(i))
+        k, _, v = _scalars(rrd, recording.tension_series(i))
         assert k.tolist() == list(range(1, STEPS + 1))
         tensions[1:, i] = v[:, 0]
     # Re-encode every recorded state as the sim published it: the digest is the run's, bit for bit,
     # so in particular the last recorded state is the sim's final state.
     metrics = RunMetrics()
     for k in range(STEPS + 1):
-        st = State(k, k * DT, (*pos[k], *quat[k]), tuple(twist[k]), tuple(lengths[k]), tuple(tensions[k]),
-                   int(clamped[k, 0]))
+        st = State(
+            k,
+            k * DT,
+            (*pos[k], *quat[k]),
+            tuple(twist[k]),
+            tuple(lengths[k]),
+            tuple(tensions[k]),
+            int(clamped[k, 0]),
+        )
         metrics.add_state(st, st.encode())
     assert metrics.digest() == summary["state_digest"]
     # the recorder's own error series ends with the run's final error (final state vs last setpoint)
-    k, _, err = _scalars(rrd, R.POSITION_ERROR_NORM)
-    assert k[-1] == STEPS and err[-1, 0] == pytest.approx(summary["final_position_error"], rel=1e-12)
-    _, _, desired = _scalars(rrd, R.DESIRED_POSITION)
+    k, _, err = _scalars(rrd, recording.POSITION_ERROR_NORM)
+    assert k[-1] == STEPS
+    assert err[-1, 0] == pytest.approx(summary["final_position_error"], rel=1e-12)
+    _, _, desired = _scalars(rrd, recording.DESIRED_POSITION)
     assert np.linalg.norm(desired[-1] - pos[-1]) == pytest.approx(summary["final_position_error"], rel=1e-12)
 
 
@@ -307,15 +362,18 @@ def test_the_recording_holds_the_whole_state_stream(recorded: tuple[dict[str, An
 def test_one_tension_series_per_cable_with_limits(recorded: tuple[dict[str, Any], Path]) -> None:
     summary, rrd = recorded
     entities = {c.entity_path for c in RrdReader(str(rrd)).stream().to_chunks()}
-    cables = sorted(e for e in entities if e.startswith(f"/{R.TENSION}/cable_"))
-    assert cables == [f"/{R.tension_series(i)}" for i in range(8)]
-    values = np.concatenate([_scalars(rrd, R.tension_series(i))[2][:, 0] for i in range(8)])
-    assert values.min() == summary["tension_min"] and values.max() == summary["tension_max"]
+    cables = sorted(e for e in entities if e.startswith(f"/{recording.TENSION}/cable_"))
+    assert cables == [f"/{recording.tension_series(i)}" for i in range(8)]
+    values = np.concatenate([_scalars(rrd, recording.tension_series(i))[2][:, 0] for i in range(8)])
+    assert values.min() == summary["tension_min"]
+    assert values.max() == summary["tension_max"]
     robot_limits = (1.0, 6500.0)  # caroca_15kg's limits
-    for entity, limit in ((R.TENSION_MIN, robot_limits[0]), (R.TENSION_MAX, robot_limits[1])):
+    for entity, limit in ((recording.TENSION_MIN, robot_limits[0]), (recording.TENSION_MAX, robot_limits[1])):
         k, _, v = _scalars(rrd, entity)
-        assert np.all(v == limit) and k.min() == 1 and k.max() == STEPS
-    names = _rows(rrd, R.tension_series(3), "SeriesLines:names", static=True)
+        assert np.all(v == limit)
+        assert k.min() == 1
+        assert k.max() == STEPS
+    names = _rows(rrd, recording.tension_series(3), "SeriesLines:names", static=True)
     assert names == [(None, ["cable 3"])]
 
 
@@ -323,24 +381,26 @@ def test_one_tension_series_per_cable_with_limits(recorded: tuple[dict[str, Any]
 def test_the_scene_is_static_plus_decimated_poses(recorded: tuple[dict[str, Any], Path]) -> None:
     _, rrd = recorded
     robot = load_robot("caroca")
-    frame = _rows(rrd, R.FRAME_ANCHORS, "Points3D:labels", static=True)
+    frame = _rows(rrd, recording.FRAME_ANCHORS, "Points3D:labels", static=True)
     assert frame == [(None, ["0,1", "2,3", "4,5", "6,7"])]
-    poses = _rows(rrd, R.PLATFORM, "Transform3D:translation")
+    poses = _rows(rrd, recording.PLATFORM, "Transform3D:translation")
     assert [k for k, _ in poses] == list(range(0, STEPS + 1, 10))
-    _, _, pos = _scalars(rrd, R.ACTUAL_POSITION)
+    _, _, pos = _scalars(rrd, recording.ACTUAL_POSITION)
     assert np.allclose(poses[-1][1][0], pos[STEPS], atol=1e-6)  # float32 in the 3D scene
-    cables = _rows(rrd, R.CABLES, "LineStrips3D:strips")
+    cables = _rows(rrd, recording.CABLES, "LineStrips3D:strips")
     assert [k for k, _ in cables] == list(range(0, STEPS + 1, 10))
     last = np.array(cables[-1][1])
     assert last.shape == (8, 2, 3)
     assert np.allclose(last[:, 1], robot.frame_points, atol=1e-6)
-    _, _, quat = _scalars(rrd, R.ACTUAL_QUATERNION)
+    _, _, quat = _scalars(rrd, recording.ACTUAL_QUATERNION)
     k = inverse_kinematics(robot, pos[STEPS], quat_to_matrix(quat[STEPS]))
     assert np.allclose(last[:, 0], k.platform_points_world, atol=1e-5)
-    colors = _rows(rrd, R.CABLES, "LineStrips3D:colors")
+    colors = _rows(rrd, recording.CABLES, "LineStrips3D:colors")
     assert len(colors[-1][1]) == 8
-    assert [k for k, _ in _rows(rrd, R.DESIRED, "Transform3D:translation")] == list(range(0, STEPS, 10))
-    path = _rows(rrd, R.PATH, "LineStrips3D:strips")
+    assert [k for k, _ in _rows(rrd, recording.DESIRED, "Transform3D:translation")] == list(
+        range(0, STEPS, 10)
+    )
+    path = _rows(rrd, recording.PATH, "LineStrips3D:strips")
     assert [k for k, _ in path] == list(range(0, STEPS + 1, 50))
     assert len(path[-1][1][0]) == STEPS // 50 + 1
 
@@ -356,7 +416,13 @@ def test_the_blueprint_is_sent_with_the_recording(recorded: tuple[dict[str, Any]
         rb = chunk.to_record_batch()
         if "ViewBlueprint:space_origin" in rb.schema.names:
             origins.update(v[0].lstrip("/") for v in rb.column("ViewBlueprint:space_origin").to_pylist())
-    paper = {R.DESIRED_POSITION, R.ACTUAL_POSITION, R.POSITION_ERROR, R.TENSION, R.WORLD}
+    paper = {
+        recording.DESIRED_POSITION,
+        recording.ACTUAL_POSITION,
+        recording.POSITION_ERROR,
+        recording.TENSION,
+        recording.WORLD,
+    }
     assert paper <= origins
 
 
@@ -368,7 +434,9 @@ def test_rerun_verifies_the_file(recorded: tuple[dict[str, Any], Path]) -> None:
 
 
 @pytest.mark.slow
-def test_report_writes_the_figure_and_the_run_summary(recorded: tuple[dict[str, Any], Path], tmp_path: Path) -> None:
+def test_report_writes_the_figure_and_the_run_summary(
+    recorded: tuple[dict[str, Any], Path], tmp_path: Path
+) -> None:
     summary, rrd = recorded
     proc = cdpr("report", str(rrd), "-o", str(tmp_path / "out"), timeout=120, check=True)
     out = json.loads(proc.stdout)
@@ -379,13 +447,29 @@ def test_report_writes_the_figure_and_the_run_summary(recorded: tuple[dict[str, 
     assert _png_size(tmp_path / "out" / "orientation_error.png") == (1200, 400)
     got = json.loads((tmp_path / "out" / "summary.json").read_text())
     assert got == out["summary"]
-    for key in ("steps", "total_steps", "clamped_commands", "infeasible_commands", "state_digest", "scenario",
-                "session"):
+    for key in (
+        "steps",
+        "total_steps",
+        "clamped_commands",
+        "infeasible_commands",
+        "state_digest",
+        "scenario",
+        "session",
+    ):
         assert got[key] == summary[key], key
-    for key in ("sim_time", "rms_position_error", "max_position_error", "final_position_error",
-                "rms_orientation_error", "max_orientation_error", "tension_min", "tension_max"):
+    for key in (
+        "sim_time",
+        "rms_position_error",
+        "max_position_error",
+        "final_position_error",
+        "rms_orientation_error",
+        "max_orientation_error",
+        "tension_min",
+        "tension_max",
+    ):
         assert got[key] == pytest.approx(summary[key], rel=1e-12, abs=0), key
-    assert got["tension_series"] == 8 and got["recorded_states"] == STEPS + 1
+    assert got["tension_series"] == 8
+    assert got["recorded_states"] == STEPS + 1
 
 
 @pytest.mark.slow
@@ -395,14 +479,18 @@ def test_show_draws_a_robot_at_home(tmp_path: Path) -> None:
     assert json.loads(proc.stdout)["rrd"] == str(rrd)
     assert _rerun("rrd", "verify", str(rrd)).returncode == 0
     robot = load_robot("caroca")
-    (row,) = _rows(rrd, R.CABLES, "LineStrips3D:strips", static=True)
+    (row,) = _rows(rrd, recording.CABLES, "LineStrips3D:strips", static=True)
     strips = np.array(row[1])
     k = inverse_kinematics(robot, robot.home_position, robot.home_rotation)
     assert np.allclose(strips[:, 0], k.platform_points_world, atol=1e-6)
     assert np.allclose(strips[:, 1], robot.frame_points, atol=1e-6)
-    assert _rows(rrd, R.CABLES, "LineStrips3D:labels", static=True)[0][1] == [f"cable {i}" for i in range(8)]
-    assert _rows(rrd, R.PLATFORM_ANCHORS, "Points3D:labels", static=True)[0][1] == [str(i) for i in range(8)]
-    (pose,) = _rows(rrd, R.PLATFORM, "Transform3D:translation", static=True)
+    assert _rows(rrd, recording.CABLES, "LineStrips3D:labels", static=True)[0][1] == [
+        f"cable {i}" for i in range(8)
+    ]
+    assert _rows(rrd, recording.PLATFORM_ANCHORS, "Points3D:labels", static=True)[0][1] == [
+        str(i) for i in range(8)
+    ]
+    (pose,) = _rows(rrd, recording.PLATFORM, "Transform3D:translation", static=True)
     assert np.allclose(pose[1][0], robot.home_position)
 
 
@@ -410,8 +498,21 @@ def test_show_draws_a_robot_at_home(tmp_path: Path) -> None:
 def test_a_recorder_stopped_by_sigterm_leaves_a_readable_file(session_id: str, tmp_path: Path) -> None:
     rrd = tmp_path / "stopped.rrd"
     run = subprocess.Popen(
-        [*CDPR, "run", "caroca_15kg", "--duration", "20", "--session", session_id, "--rrd", str(rrd), "--quiet"],
-        stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+        [
+            *CDPR,
+            "run",
+            "caroca_15kg",
+            "--duration",
+            "20",
+            "--session",
+            session_id,
+            "--rrd",
+            str(rrd),
+            "--quiet",
+        ],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
     )
     try:
         deadline = time.monotonic() + 120
@@ -432,11 +533,12 @@ def test_a_recorder_stopped_by_sigterm_leaves_a_readable_file(session_id: str, t
     assert summary["exit_codes"]["recorder"] == 128 + signal.SIGTERM
     assert summary["exit_ok"] is False
     assert _rerun("rrd", "verify", str(rrd)).returncode == 0  # footer included: the file was closed properly
-    steps, _, _ = _scalars(rrd, R.ACTUAL_POSITION)
+    steps, _, _ = _scalars(rrd, recording.ACTUAL_POSITION)
     last = int(steps[-1])
-    assert 200 <= last < 20_000 and last <= summary["steps"]
+    assert 200 <= last < 20_000
+    assert last <= summary["steps"]
     assert steps.tolist() == list(range(last + 1))  # nothing lost up to the last recorded state
-    for entity in (R.ACTUAL_TWIST, R.CABLE_LENGTHS, R.ACTUAL_QUATERNION):
+    for entity in (recording.ACTUAL_TWIST, recording.CABLE_LENGTHS, recording.ACTUAL_QUATERNION):
         assert _scalars(rrd, entity)[0].tolist() == steps.tolist()
     rep = cdpr("report", str(rrd), "-o", str(tmp_path / "rep"), timeout=120, check=True)
     assert json.loads(rep.stdout)["summary"]["steps"] == last
@@ -453,4 +555,5 @@ def test_a_missing_or_bad_file_is_one_line_and_exit_2(command: str, tmp_path: Pa
         bad.write_bytes(b"not a recording at all")
         proc = cdpr(command, str(bad))
         assert proc.returncode == 2
-        assert proc.stderr.startswith(f"cdpr: error: {bad}: ") and len(proc.stderr.strip().splitlines()) == 1
+        assert proc.stderr.startswith(f"cdpr: error: {bad}: ")
+        assert len(proc.stderr.strip().splitlines()) == 1

@@ -1,4 +1,4 @@
-"""`python -m cdpr_recorder SCENARIO --rrd FILE [--spawn] [--connect-viewer URL]`: the same as `cdpr recorder`."""
+"""`python -m cdpr_recorder SCENARIO --rrd FILE [--spawn] [--connect-viewer URL]`: as `cdpr recorder`."""
 
 from cdpr.cli import service_main
 

@@ -19,9 +19,8 @@ from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
-from numpy.typing import ArrayLike, NDArray
-
 from cdpr.protocol import Command, Setpoint, State, Status
+from numpy.typing import ArrayLike, NDArray
 
 F64 = NDArray[np.float64]
 I64 = NDArray[np.int64]
@@ -103,8 +102,14 @@ class Batch:
 
     @property
     def empty(self) -> bool:
-        return not (len(self.states.step) or len(self.setpoints.step) or len(self.commands.step)
-                    or len(self.errors.step) or self.statuses or self.path.step)
+        return not (
+            len(self.states.step)
+            or len(self.setpoints.step)
+            or len(self.commands.step)
+            or len(self.errors.step)
+            or self.statuses
+            or self.path.step
+        )
 
 
 def _quat_mul(a: F64, b: F64) -> F64:
@@ -158,7 +163,7 @@ def _rows(values: list[tuple[float, ...]], width: int) -> F64:
 
 @dataclass
 class RecorderCore:
-    """Buffers decoded messages; the node owns one and calls :meth:`take` when :attr:`due` (and at the end)."""
+    """Buffers decoded messages; the node owns one and calls :meth:`take` when :attr:`due` and at the end."""
 
     params: Params
     states: list[State] = field(default_factory=list)
@@ -296,7 +301,9 @@ class RecorderCore:
             position=desired[:, :3] - actual[:, :3],
             orientation=orientation_errors(desired[:, 3:], actual[:, 3:]) if pairs else np.zeros((0, 3)),
         )
-        return Batch(state_rows, setpoint_rows, command_rows, error_rows, statuses, self._path_rows(states, final_step))
+        return Batch(
+            state_rows, setpoint_rows, command_rows, error_rows, statuses, self._path_rows(states, final_step)
+        )
 
     def _path_rows(self, states: list[State], final_step: int | None) -> PathRows:
         steps: list[int] = []

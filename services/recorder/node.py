@@ -17,8 +17,7 @@ from typing import Any
 import numpy as np
 import rerun as rr
 import zenoh
-
-from cdpr import recording as R
+from cdpr import recording
 from cdpr.protocol import Command, Keys, ProtocolError, Setpoint, State, Status, Tick
 from cdpr.scenario import Scenario
 from cdpr.service import Node
@@ -53,31 +52,36 @@ class RecorderNode(Node):
         self.last_flush = time.monotonic()
         self.finish_by: float | None = None  # set when the clock has finished, until the final state is in
         self.closed = False
-        self.recording_id = R.recording_id(keys.session)
-        self.rec = R.Recording(self.recording_id, rrd=rrd, spawn=spawn, viewer=viewer, blueprint=R.blueprint())
+        self.recording_id = recording.recording_id(keys.session)
+        self.rec = recording.Recording(
+            self.recording_id, rrd=rrd, spawn=spawn, viewer=viewer, blueprint=recording.blueprint()
+        )
         self._log_static()
 
     def _log_static(self) -> None:
         sc, rec = self.scenario, self.rec
         rec.send_recording_name(f"{sc.name} ({self.keys.session})")
-        R.log_session(rec, {
-            "scenario": sc.name,
-            "session": self.keys.session,
-            "recording_id": self.recording_id,
-            "dt": sc.dt,
-            "duration": sc.duration,
-            "total_steps": sc.total_steps,
-            "cables": self.m,
-            "tmin": self.robot.tmin,
-            "tmax": self.robot.tmax,
-            "scene_every": self.core.params.scene_every,
-            "path_every": self.core.params.path_every,
-            "info": sc.info(),
-        })
-        R.log_scene(rec, self.robot)
-        R.log_series_styles(rec, self.m)
+        recording.log_session(
+            rec,
+            {
+                "scenario": sc.name,
+                "session": self.keys.session,
+                "recording_id": self.recording_id,
+                "dt": sc.dt,
+                "duration": sc.duration,
+                "total_steps": sc.total_steps,
+                "cables": self.m,
+                "tmin": self.robot.tmin,
+                "tmax": self.robot.tmax,
+                "scene_every": self.core.params.scene_every,
+                "path_every": self.core.params.path_every,
+                "info": sc.info(),
+            },
+        )
+        recording.log_scene(rec, self.robot)
+        recording.log_series_styles(rec, self.m)
         times = np.linspace(0.0, sc.duration, PLANNED_PATH_POINTS)
-        R.log_planned_path(rec, [sc.trajectory.sample(float(t)).position for t in times])
+        recording.log_planned_path(rec, [sc.trajectory.sample(float(t)).position for t in times])
 
     # -- wiring -----------------------------------------------------------------------------------
     def declare(self, session: zenoh.Session, inbox: Inbox) -> list[Any]:
@@ -123,8 +127,11 @@ class RecorderNode(Node):
         if last >= self.final_status.step:
             self.done = True
         elif now > self.finish_by:
-            log(self.name, f"the session finished at step {self.final_status.step} but the last state "
-                f"received is {last}; closing the recording anyway")
+            log(
+                self.name,
+                f"the session finished at step {self.final_status.step} but the last state "
+                f"received is {last}; closing the recording anyway",
+            )
             self.done = True
 
     def idle(self, now: float) -> None:
@@ -142,47 +149,73 @@ class RecorderNode(Node):
         rec, robot = self.rec, self.robot
         s = b.states
         if len(s.step):
-            R.send_scalars(rec, R.ACTUAL_POSITION, s.step, s.t, s.pose[:, :3])
-            R.send_scalars(rec, R.ACTUAL_QUATERNION, s.step, s.t, s.pose[:, 3:])
-            R.send_scalars(rec, R.ACTUAL_TWIST, s.step, s.t, s.twist)
-            R.send_scalars(rec, R.CABLE_LENGTHS, s.step, s.t, s.lengths)
-            R.send_scalars(rec, R.CLAMPED, s.step, s.t, s.clamped)
+            recording.send_scalars(rec, recording.ACTUAL_POSITION, s.step, s.t, s.pose[:, :3])
+            recording.send_scalars(rec, recording.ACTUAL_QUATERNION, s.step, s.t, s.pose[:, 3:])
+            recording.send_scalars(rec, recording.ACTUAL_TWIST, s.step, s.t, s.twist)
+            recording.send_scalars(rec, recording.CABLE_LENGTHS, s.step, s.t, s.lengths)
+            recording.send_scalars(rec, recording.CLAMPED, s.step, s.t, s.clamped)
             applied = s.step > 0  # state 0 has no applied tensions
             k, t = s.step[applied], s.t[applied]
             for i in range(self.m):
-                R.send_scalars(rec, R.tension_series(i), k, t, s.tensions[applied, i])
-            ends = [0, len(k) - 1] if len(k) > 1 else list(range(len(k)))  # a straight line: two points a batch
-            R.send_scalars(rec, R.TENSION_MIN, k[ends], t[ends], np.full(len(ends), robot.tmin))
-            R.send_scalars(rec, R.TENSION_MAX, k[ends], t[ends], np.full(len(ends), robot.tmax))
+                recording.send_scalars(rec, recording.tension_series(i), k, t, s.tensions[applied, i])
+            ends = (
+                [0, len(k) - 1] if len(k) > 1 else list(range(len(k)))
+            )  # a straight line: two points a batch
+            recording.send_scalars(
+                rec, recording.TENSION_MIN, k[ends], t[ends], np.full(len(ends), robot.tmin)
+            )
+            recording.send_scalars(
+                rec, recording.TENSION_MAX, k[ends], t[ends], np.full(len(ends), robot.tmax)
+            )
             sc = s.scene
-            R.send_poses(rec, R.PLATFORM, s.step[sc], s.t[sc], s.pose[sc])
-            R.send_cables(rec, robot, s.step[sc], s.t[sc], s.pose[sc], s.tensions[sc])
+            recording.send_poses(rec, recording.PLATFORM, s.step[sc], s.t[sc], s.pose[sc])
+            recording.send_cables(rec, robot, s.step[sc], s.t[sc], s.pose[sc], s.tensions[sc])
         sp = b.setpoints
         if len(sp.step):
-            R.send_scalars(rec, R.DESIRED_POSITION, sp.step, sp.t, sp.pose[:, :3])
-            R.send_scalars(rec, R.DESIRED_QUATERNION, sp.step, sp.t, sp.pose[:, 3:])
-            R.send_poses(rec, R.DESIRED, sp.step[sp.scene], sp.t[sp.scene], sp.pose[sp.scene])
+            recording.send_scalars(rec, recording.DESIRED_POSITION, sp.step, sp.t, sp.pose[:, :3])
+            recording.send_scalars(rec, recording.DESIRED_QUATERNION, sp.step, sp.t, sp.pose[:, 3:])
+            recording.send_poses(rec, recording.DESIRED, sp.step[sp.scene], sp.t[sp.scene], sp.pose[sp.scene])
         c = b.commands
         if len(c.step):
-            R.send_scalars(rec, R.COMMAND_FEASIBLE, c.step, c.t, c.feasible.astype(float))
+            recording.send_scalars(rec, recording.COMMAND_FEASIBLE, c.step, c.t, c.feasible.astype(float))
             bad = [j for j, status in enumerate(c.status) if status != "ok"]
-            R.send_text(rec, R.COMMAND_STATUS, [int(c.step[j]) for j in bad], [float(c.t[j]) for j in bad],
-                        [f"step {c.step[j]}: {c.status[j]}" for j in bad], level=rr.TextLogLevel.WARN)
+            recording.send_text(
+                rec,
+                recording.COMMAND_STATUS,
+                [int(c.step[j]) for j in bad],
+                [float(c.t[j]) for j in bad],
+                [f"step {c.step[j]}: {c.status[j]}" for j in bad],
+                level=rr.TextLogLevel.WARN,
+            )
         e = b.errors
         if len(e.step):
-            R.send_scalars(rec, R.POSITION_ERROR_AXES, e.step, e.t, e.position)
-            R.send_scalars(rec, R.POSITION_ERROR_NORM, e.step, e.t, np.linalg.norm(e.position, axis=1))
-            R.send_scalars(rec, R.ORIENTATION_ERROR_AXES, e.step, e.t, e.orientation)
-            R.send_scalars(rec, R.ORIENTATION_ERROR_NORM, e.step, e.t, np.linalg.norm(e.orientation, axis=1))
+            recording.send_scalars(rec, recording.POSITION_ERROR_AXES, e.step, e.t, e.position)
+            recording.send_scalars(
+                rec, recording.POSITION_ERROR_NORM, e.step, e.t, np.linalg.norm(e.position, axis=1)
+            )
+            recording.send_scalars(rec, recording.ORIENTATION_ERROR_AXES, e.step, e.t, e.orientation)
+            recording.send_scalars(
+                rec, recording.ORIENTATION_ERROR_NORM, e.step, e.t, np.linalg.norm(e.orientation, axis=1)
+            )
         if b.statuses:
             for key in sorted({k for row in b.statuses for k in row.stats}):
                 rows = [row for row in b.statuses if key in row.stats]
-                R.send_scalars(rec, R.clock_series(key), [r.step for r in rows], [r.t for r in rows],
-                               [r.stats[key] for r in rows])
+                recording.send_scalars(
+                    rec,
+                    recording.clock_series(key),
+                    [r.step for r in rows],
+                    [r.t for r in rows],
+                    [r.stats[key] for r in rows],
+                )
             changed = [row for row in b.statuses if row.changed]
-            R.send_text(rec, R.CLOCK_STATE, [r.step for r in changed], [r.t for r in changed],
-                        [f"{r.state}: {r.reason}" if r.reason else r.state for r in changed])
-        R.send_path(rec, b.path.step, b.path.t, b.path.points)
+            recording.send_text(
+                rec,
+                recording.CLOCK_STATE,
+                [r.step for r in changed],
+                [r.t for r in changed],
+                [f"{r.state}: {r.reason}" if r.reason else r.state for r in changed],
+            )
+        recording.send_path(rec, b.path.step, b.path.t, b.path.points)
 
     def close(self) -> None:
         if self.closed:
@@ -195,5 +228,9 @@ class RecorderNode(Node):
                 log(self.name, f"a viewer did not get everything: {problem}")
         last = self.core.last_state.step if self.core.last_state is not None else -1
         where = f" to {self.rrd}" if self.rrd else ""
-        log(self.name, f"recorded {self.core.recorded_states} states (last step {last}){where}; "
-            f"recording id {self.recording_id}; duplicates {self.core.duplicates}, bad messages {self.bad_messages}")
+        log(
+            self.name,
+            f"recorded {self.core.recorded_states} states (last step {last}){where}; "
+            f"recording id {self.recording_id}; duplicates {self.core.duplicates}, "
+            f"repeated ticks {self.core.repeated_ticks}, bad messages {self.bad_messages}",
+        )

@@ -274,7 +274,7 @@ class UpsSim:
         damping = self.robot.cable_damping * s.rates
         c_p = self.robot.passive_damping
         forces = np.empty((self.robot.m, 3))
-        forces[:, :2] = -c_p * s.leg_velocities[:, :2]  # universal joints
+        forces[:, :2] = 0.0  # universal joints
         forces[:, 2] = -(applied + damping)  # the prismatic axis points away from a_i
         for leg, f in zip(self._legs, forces, strict=True):
             leg.skeleton.setForces(f)

@@ -1,0 +1,368 @@
+"""Remote controllers: the cdpr.client SDK, its two examples, and a router restarted under a running session."""
+
+from __future__ import annotations
+
+import ast
+import queue
+import signal
+import subprocess
+import sys
+import threading
+import time
+from pathlib import Path
+from typing import Any
+
+import msgpack
+import numpy as np
+import pytest
+import zenoh
+
+from cdpr.client import FunctionController, RemoteController, SessionInfo, controller, robot_from_summary
+from cdpr.kinematics import inverse_kinematics
+from cdpr.protocol import Command, Keys, ProtocolError, Setpoint, State, Status
+from cdpr.rotation import rpy_to_matrix
+from cdpr.scenario import load_scenario
+from cdpr.transport import StopFlag, zenoh_config
+from conftest import CDPR, free_port, last_json_line
+from test_compose import Processes, clock_rate
+
+ROOT = Path(__file__).resolve().parent.parent
+EXAMPLES = ROOT / "examples"
+WAIT = 20.0  # seconds any single expected message may take (a bound, never a measurement)
+
+
+def info_payload(name: str = "caroca_15kg") -> bytes:
+    return msgpack.packb({"v": 1, **load_scenario(name).info()}, use_bin_type=True)
+
+
+# --------------------------------------------------------------------------------------------------
+# session/info
+
+
+def test_session_info_rebuilds_the_scenario_robot() -> None:
+    sc = load_scenario("caroca_15kg")
+    info = SessionInfo.from_payload(info_payload())
+    r = info.robot
+    assert (info.scenario, info.dt, info.total_steps, info.variant, info.tda) == ("caroca_15kg", 0.001, 11000, "6dof", "qp")
+    assert r.mass == 15.0 and r.m == 8 and (r.tmin, r.tmax) == (1.0, 6500.0)
+    np.testing.assert_array_equal(r.frame_points, sc.robot.frame_points)
+    np.testing.assert_array_equal(r.platform_points, sc.robot.platform_points)
+    np.testing.assert_array_equal(r.inertia, sc.robot.inertia)
+    np.testing.assert_array_equal(info.gains.kp, np.full(6, 1500.0))
+    assert info.rows == [0, 1, 2, 3, 4, 5]
+    # The same wrench matrix as the scenario's own robot, away from home.
+    p, R = np.array([-0.3, 0.4, 0.9]), rpy_to_matrix(0.05, -0.02, 0.1)
+    np.testing.assert_allclose(inverse_kinematics(r, p, R).wrench_matrix,
+                               inverse_kinematics(sc.robot, p, R).wrench_matrix, rtol=0, atol=1e-15)
+
+
+def test_session_info_of_a_3dof_point_mass_robot() -> None:
+    sc = load_scenario("caroca_1kg")
+    msg = {"v": 1, **sc.info()}
+    msg["robot"] = load_scenario("caroca_1kg").robot.replace(
+        mode="point_mass", platform_points=np.zeros((8, 3))).summary()
+    info = SessionInfo.from_payload(msgpack.packb(msg))
+    assert info.robot.mode == "point_mass" and info.rows == [0, 1, 2]
+
+
+@pytest.mark.parametrize(("change", "field"), [
+    (lambda m: m["robot"].pop("mass"), "robot.mass: missing"),
+    (lambda m: m["robot"].update(platform_points=[[0, 0, 0]] * 7), "robot"),
+    (lambda m: m["robot"].update(frame_points=[[0, 0, float("nan")]] * 8), "robot"),
+    (lambda m: m.pop("dt"), "dt: missing"),
+    (lambda m: m["controller"].update(variant="9dof"), "controller.variant"),
+    (lambda m: m["robot"].update(mode="hexapod"), "robot.mode"),
+])
+def test_bad_session_info_names_the_field(change: Any, field: str) -> None:
+    msg = {"v": 1, **load_scenario("caroca_15kg").info()}
+    change(msg)
+    with pytest.raises(ProtocolError, match=f"session/info: {field.split(':')[0]}"):
+        SessionInfo.from_payload(msgpack.packb(msg))
+
+
+def test_robot_from_summary_rejects_a_rank_deficient_robot() -> None:
+    summary = load_scenario("caroca_15kg").robot.summary()
+    summary["frame_points"] = [summary["frame_points"][0]] * 8
+    summary["platform_points"] = [[0.0, 0.0, 0.0]] * 8
+    with pytest.raises(ProtocolError, match="rank"):
+        robot_from_summary(summary)
+
+
+def test_controller_decorator_takes_two_or_three_parameters() -> None:
+    assert not controller(lambda state, setpoint: [0.0]).wants_info
+    assert controller(lambda state, setpoint, info: [0.0]).wants_info
+    with pytest.raises(TypeError, match="takes"):
+        controller(lambda state: [0.0])
+    assert isinstance(controller(lambda s, p: 0), FunctionController)
+
+
+# --------------------------------------------------------------------------------------------------
+# The protocol, step by step, against a real Zenoh router played by the test
+
+
+class Harness:
+    """The test plays clock, sim and trajectory on a Zenoh router session; the SDK joins as a client."""
+
+    def __init__(self, session_id: str) -> None:
+        self.keys = Keys(session_id)
+        self.port = free_port()
+        self.z = zenoh.open(zenoh_config("router", listen=[f"tcp/127.0.0.1:{self.port}"]))
+        self.commands: queue.SimpleQueue[Command] = queue.SimpleQueue()
+        self.alive = threading.Event()
+        payload = info_payload()
+        self.entities = [
+            self.z.declare_queryable(self.keys.info, lambda q: q.reply(q.key_expr, payload)),
+            self.z.declare_subscriber(self.keys.command, lambda s: self.commands.put(Command.decode(s.payload.to_bytes()))),
+            self.z.liveliness().declare_subscriber(self.keys.alive("controller"), self._token, history=True),
+        ]
+
+    def _token(self, sample: zenoh.Sample) -> None:
+        if sample.kind == zenoh.SampleKind.PUT:
+            self.alive.set()
+
+    @property
+    def endpoint(self) -> str:
+        return f"tcp/127.0.0.1:{self.port}"
+
+    def state(self, k: int) -> None:
+        self.z.put(self.keys.state, State(k, k / 1000, (0.9, 0.9, 0.2, 0, 0, 0, 1), (0.0,) * 6,
+                                          (4.0,) * 8, (0.0,) * 8).encode())
+
+    def setpoint(self, k: int) -> None:
+        self.z.put(self.keys.setpoint, Setpoint(k, k / 1000, (0.9, 0.9, 0.2 + k, 0, 0, 0, 1), (0.0,) * 6,
+                                                (0.0,) * 6).encode())
+
+    def status(self, state: str) -> None:
+        self.z.put(self.keys.status, Status(state, 3, 0.003, 4, reason="test").encode())
+
+    def next_command(self) -> Command:
+        return self.commands.get(timeout=WAIT)
+
+    def close(self) -> None:
+        for e in self.entities:
+            e.undeclare()
+        self.z.close()
+
+
+def run_in_thread(ctrl: RemoteController, h: Harness, **kw: Any) -> tuple[threading.Thread, dict[str, Any], StopFlag]:
+    out: dict[str, Any] = {}
+    stop = StopFlag()
+
+    def target() -> None:
+        try:
+            out["report"] = ctrl.run(h.endpoint, h.keys.session, handle_signals=False, stop=stop, **kw)
+        except BaseException as exc:  # handed to the test
+            out["error"] = exc
+
+    t = threading.Thread(target=target, daemon=True)
+    t.start()
+    return t, out, stop
+
+
+def test_sdk_answers_each_state_once_its_setpoint_is_there(session_id: str) -> None:
+    calls: list[tuple[int, int, float]] = []
+
+    @controller
+    def echo(state: State, setpoint: Setpoint, info: SessionInfo) -> list[float]:
+        calls.append((state.step, setpoint.step, info.robot.mass))
+        return [float(state.step) + i + setpoint.pose[2] for i in range(info.robot.m)]
+
+    h = Harness(session_id)
+    try:
+        t, out, _ = run_in_thread(echo, h)
+        assert h.alive.wait(WAIT), out
+        h.setpoint(0)
+        h.state(0)
+        c = h.next_command()
+        assert (c.step, c.t) == (0, 0.0)
+        assert c.tensions == tuple(0.2 + i for i in range(8))
+        h.state(1)  # no setpoint 1 yet: nothing to answer...
+        h.setpoint(1)  # ...until it comes
+        assert h.next_command().step == 1
+        h.state(1)  # the same state again (a resend): answered again
+        assert h.next_command().step == 1
+        h.setpoint(1)  # a repeated setpoint alone is no reason to answer
+        h.z.put(h.keys.state, b"\x93 garbage")  # dropped, counted, survived
+        h.state(2)
+        h.setpoint(2)
+        c = h.next_command()
+        assert c.step == 2 and c.tensions[0] == pytest.approx(2.0 + 2.2)
+        h.status("finished")
+        t.join(WAIT)
+        assert not t.is_alive()
+    finally:
+        h.close()
+    assert "error" not in out, out
+    report = out["report"]
+    assert report.exit_code == 0 and report.status is not None and report.status.state == "finished"
+    assert (report.answered, report.last_step) == (4, 2)
+    assert [(k, j) for k, j, _ in calls] == [(0, 0), (1, 1), (1, 1), (2, 2)]
+    assert {mass for _, _, mass in calls} == {15.0}
+    assert report.info is not None and report.info.scenario == "caroca_15kg"
+    assert h.commands.empty()
+
+
+def test_sdk_exits_on_aborted_and_on_a_bad_answer(session_id: str) -> None:
+    class Wrong(RemoteController):
+        def step(self, state: State, setpoint: Setpoint) -> list[float]:
+            return [1.0] * 7  # one tension short
+
+    h = Harness(session_id)
+    try:
+        t, out, _ = run_in_thread(controller(lambda s, p: np.ones(8)), h)
+        assert h.alive.wait(WAIT)
+        h.status("aborted")
+        t.join(WAIT)
+        assert out["report"].exit_code == 1 and out["report"].status.state == "aborted"
+        h.alive.clear()
+        t, out, _ = run_in_thread(Wrong(), h)
+        assert h.alive.wait(WAIT)
+        h.setpoint(0)
+        h.state(0)
+        t.join(WAIT)
+        assert not t.is_alive()
+        assert isinstance(out.get("error"), ValueError) and "8 finite tensions" in str(out["error"])
+    finally:
+        h.close()
+
+
+def test_sdk_gives_up_without_a_session(session_id: str) -> None:
+    h = Harness(session_id)
+    h.entities.pop(0).undeclare()  # nobody answers session/info
+    try:
+        t, out, _ = run_in_thread(controller(lambda s, p: [0.0]), h, info_timeout=0.5)
+        t.join(WAIT)
+        assert out["report"].exit_code == 1 and out["report"].answered == 0
+        t, out, _ = run_in_thread(controller(lambda s, p: [0.0]), h, fetch_session_info=False, idle_timeout=0.5)
+        t.join(WAIT)
+        assert out["report"].exit_code == 1
+        t, out, stop = run_in_thread(controller(lambda s, p: [0.0]), h)  # waits for the session...
+        time.sleep(0.3)
+        stop.set()  # ...until told to stop
+        t.join(WAIT)
+        assert not t.is_alive() and out["report"].info is None
+    finally:
+        h.close()
+
+
+# --------------------------------------------------------------------------------------------------
+# The examples against real sessions
+
+
+def test_example_remote_controller_is_short_and_uses_the_sdk() -> None:
+    src = (EXAMPLES / "remote_controller.py").read_text()
+    assert len(src.splitlines()) <= 25
+    imported = {n.module for n in ast.walk(ast.parse(src)) if isinstance(n, ast.ImportFrom)}
+    assert "cdpr.client" in imported and "cdpr_controller" not in str(imported)
+
+
+def test_plain_example_imports_nothing_from_cdpr() -> None:
+    tree = ast.parse((EXAMPLES / "plain_zenoh_controller.py").read_text())
+    modules = {a.name for n in ast.walk(tree) if isinstance(n, ast.Import) for a in n.names}
+    modules |= {n.module for n in ast.walk(tree) if isinstance(n, ast.ImportFrom)}
+    assert not any(m and m.startswith("cdpr") for m in modules)
+    assert {"zenoh", "msgpack"} <= modules
+
+
+def _up_with(example: str, session_id: str, duration: str, tmp_path: Path) -> tuple[dict[str, Any], str]:
+    endpoint = f"tcp/127.0.0.1:{free_port()}"
+    procs = Processes()
+    try:
+        up = procs.start("up", [*CDPR, "up", "caroca_15kg", "--duration", duration, "--session", session_id,
+                                "--without", "controller", "--listen", endpoint, "--quiet", "--join-timeout", "60"],
+                         tmp_path, tmp_path / "up.log")
+        procs.start("remote", [sys.executable, str(EXAMPLES / example), "--connect", endpoint,
+                               "--session", session_id], tmp_path, tmp_path / "remote.log")
+        codes = procs.wait(["up", "remote"], timeout=180)
+        assert codes == {"up": 0, "remote": 0}, procs.report()
+        assert up.returncode == 0
+    finally:
+        procs.close()
+    return last_json_line(procs.log("up")), procs.log("remote")
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("example", ["remote_controller.py", "plain_zenoh_controller.py"])
+def test_example_controllers_complete_a_15kg_session(example: str, session_id: str, tmp_path: Path) -> None:
+    s, remote_log = _up_with(example, session_id, "1.5", tmp_path)
+    assert s["exit_ok"] is True and s["steps"] == s["total_steps"] == 1500
+    assert s["rms_position_error"] < 1e-3 and s["final_position_error"] < 1e-3  # ~0.3 mm: PD without feedforward
+    assert s["rms_orientation_error"] < 1e-3
+    assert s["clamped_commands"] == 0
+    assert 1.0 <= s["tension_min"] <= s["tension_max"] < 200.0  # 15 kg on 8 cables: no tension fighting
+    assert "answered" in remote_log and "1499" in remote_log
+    print(f"{example}: {s['rate']:.0f} steps/s")
+
+
+@pytest.mark.slow
+def test_sdk_controller_stops_on_sigint_and_the_session_pauses(session_id: str, tmp_path: Path) -> None:
+    endpoint = f"tcp/127.0.0.1:{free_port()}"
+    procs = Processes()
+    try:
+        up = procs.start("up", [*CDPR, "up", "caroca_15kg", "--duration", "60", "--session", session_id,
+                                "--without", "controller", "--listen", endpoint], tmp_path, tmp_path / "up.log")
+        remote = procs.start("remote", [sys.executable, str(EXAMPLES / "remote_controller.py"), "--connect", endpoint,
+                                        "--session", session_id], tmp_path, tmp_path / "remote.log")
+        deadline = time.monotonic() + 60
+        while time.monotonic() < deadline and "joined session" not in procs.log("remote"):
+            time.sleep(0.05)
+        with zenoh.open(zenoh_config("client", connect=[endpoint])) as z:
+            sub = z.declare_subscriber(Keys(session_id).status)
+            step = 0
+            while time.monotonic() < deadline and step < 200:
+                sample = sub.recv()
+                step = Status.decode(sample.payload.to_bytes()).step
+        assert step >= 200, procs.report()
+        remote.send_signal(signal.SIGINT)
+        assert remote.wait(timeout=10) == 128 + signal.SIGINT
+        log = ""
+        while time.monotonic() < deadline and "paused: waiting for controller" not in (log := procs.log("up")):
+            time.sleep(0.05)
+        assert "paused: waiting for controller" in log
+        assert up.poll() is None
+        assert procs.stop("up", signal.SIGINT, timeout=20) == 128 + signal.SIGINT
+    finally:
+        procs.close()
+    assert "answered" in procs.log("remote")
+    assert last_json_line(procs.log("up"))["exit_ok"] is False
+
+
+@pytest.mark.slow
+def test_session_survives_a_router_restart(session_id: str, tmp_path: Path) -> None:
+    """Every participant is a Zenoh client of one standalone router, which is killed mid-run and restarted."""
+    port = free_port()
+    endpoint = f"tcp/127.0.0.1:{port}"
+    common = ["caroca_15kg", "--duration", "3", "--session", session_id, "--zenoh-mode", "client",
+              "--connect", endpoint]
+    router = [*CDPR, "router", "--listen", endpoint]
+    procs = Processes()
+    try:
+        procs.start("router", router, tmp_path, tmp_path / "router.log")
+        procs.start("clock", [*CDPR, "clock", *common, "--expect", "sim,trajectory,controller"], tmp_path,
+                    tmp_path / "clock.log")
+        for name in ("sim", "trajectory"):
+            procs.start(name, [*CDPR, name, *common], tmp_path, tmp_path / f"{name}.log")
+        procs.start("remote", [sys.executable, str(EXAMPLES / "remote_controller.py"), "--connect", endpoint,
+                               "--session", session_id], tmp_path, tmp_path / "remote.log")
+        steps: list[int] = []
+        with zenoh.open(zenoh_config("client", connect=[endpoint])) as z:
+            z.declare_subscriber(Keys(session_id).state,
+                                 lambda s: steps.append(State.decode(s.payload.to_bytes()).step))
+            deadline = time.monotonic() + 90
+            while time.monotonic() < deadline and (not steps or steps[-1] < 800):
+                time.sleep(0.02)
+            assert steps and steps[-1] >= 800, procs.report()
+            assert procs.stop("router", signal.SIGKILL) == -signal.SIGKILL
+            killed_at = steps[-1]
+            time.sleep(1.0)
+            procs.start("router2", router, tmp_path, tmp_path / "router2.log")
+            codes = procs.wait(["clock", "sim", "trajectory", "remote"], timeout=120)
+            assert codes == {"clock": 0, "sim": 0, "trajectory": 0, "remote": 0}, procs.report()
+        assert killed_at < 3000
+        assert "finished 3000 steps" in procs.log("clock")
+        assert "resuming" in procs.log("clock"), procs.report()
+        assert "up to step 2999" in procs.log("remote")
+        assert procs.stop("router2", signal.SIGTERM) == 0
+    finally:
+        procs.close()
+    print(f"router restarted at step {killed_at}; {clock_rate(procs.log('clock')):.0f} steps/s overall")
