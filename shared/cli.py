@@ -334,7 +334,9 @@ def up(**kw: Any) -> None:
 @click.option("--web", is_flag=True, help="serve the web viewer instead of opening the native one")
 @click.option("--port", type=click.IntRange(0, 65535), default=0, show_default=True,
               help="web viewer HTTP port with --web (0: a free one)")
-def replay(file: str, web: bool, port: int) -> None:
+@click.option("--bind", default="127.0.0.1", show_default=True,
+              help="address the web viewer listens on with --web (0.0.0.0 to reach it from another machine)")
+def replay(file: str, web: bool, port: int, bind: str) -> None:
     """Open the recording FILE.rrd in the Rerun viewer (with --web: serve it and print the URL)."""
     import signal
     import subprocess
@@ -346,7 +348,7 @@ def replay(file: str, web: bool, port: int) -> None:
     if not Path(file).is_file():
         raise InputError(f"{file}: no such file")
     web_port, grpc_port = (port or free_port(), free_port()) if web else (0, 0)
-    proc = subprocess.Popen(viewer_command(file, web=web, web_port=web_port, grpc_port=grpc_port))
+    proc = subprocess.Popen(viewer_command(file, web=web, web_port=web_port, grpc_port=grpc_port, bind=bind))
 
     def forward(signum: int, _frame: Any) -> None:  # the viewer stops with us
         proc.send_signal(signum)
@@ -403,10 +405,13 @@ def soak(minutes: float, scenario: str, duration: float, seed: int) -> None:
 
 
 @cli.command()
-@click.option("--listen", multiple=True, help="endpoint to listen on (default tcp/0.0.0.0:7447 unless in the config)")
+@click.option("--listen", multiple=True,
+              help="endpoint to listen on (default tcp/0.0.0.0:7447 unless in the config)")
+@click.option("--connect", multiple=True,
+              help="another router to join, e.g. a session's (router-to-router link)")
 @click.option("--zenoh-config", type=click.Path(), default=None,
               help="Zenoh JSON5 config file (or $ZENOH_CONFIG): TLS, user/password, access control")
-def router(listen: tuple[str, ...], zenoh_config: str | None) -> None:
+def router(listen: tuple[str, ...], connect: tuple[str, ...], zenoh_config: str | None) -> None:
     """Run a standalone Zenoh router that sessions' services connect to, until SIGINT/SIGTERM."""
     import os
     import time
@@ -417,7 +422,7 @@ def router(listen: tuple[str, ...], zenoh_config: str | None) -> None:
     config_file = zenoh_config or os.environ.get("ZENOH_CONFIG")
     if not listen and not config_file:
         listen = ("tcp/0.0.0.0:7447",)
-    conf = make_config("router", listen=listen, config_file=config_file)
+    conf = make_config("router", connect=connect, listen=listen, config_file=config_file)
     stop = StopFlag().install()
     with open_session(conf, "router") as session:
         where = ", ".join(listen) if listen else f"the endpoints of {config_file}"

@@ -51,16 +51,14 @@ class RunMetrics:
     def errors(self) -> tuple[np.ndarray, np.ndarray]:
         """Position and orientation error norms for every step with both a state and a setpoint.
 
-        The final state (after the last tick) is compared with the last setpoint.
+        The final state (after the last tick) has no setpoint and so no error: the "final" error is
+        that of the last tick's step.
         """
         pos, rot = [], []
-        last_sp = self.setpoints[max(self.setpoints)] if self.setpoints else None
         for k in sorted(self.states):
             sp = self.setpoints.get(k)
             if sp is None:
-                if k != self.last_step or last_sp is None:
-                    continue
-                sp = last_sp
+                continue
             st = self.states[k]
             pos.append(math.dist(st.pose[:3], sp.pose[:3]))
             rot.append(float(np.linalg.norm(orientation_error(quat_to_matrix(sp.pose[3:]), quat_to_matrix(st.pose[3:])))))

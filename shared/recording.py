@@ -216,6 +216,11 @@ class Recording:
         for stream in self.streams:
             stream.send_columns(path, indexes=indexes, columns=columns)
 
+    def send_blueprint(self, bp: rrb.Blueprint) -> None:
+        """Replace the layout (e.g. once the tension range of the run is known)."""
+        for stream in self.streams:
+            stream.send_blueprint(bp, make_active=True, make_default=True)
+
     def send_recording_name(self, name: str) -> None:
         for stream in self.streams:
             stream.send_recording_name(name)
@@ -237,14 +242,21 @@ class Recording:
         return problems
 
 
-def blueprint() -> rrb.Blueprint:
+def blueprint(tension_range: tuple[float, float] | None = None) -> rrb.Blueprint:
     """The default layout: the 3D scene beside the paper's Fig. 2/3 four panels (desired position,
-    actual position, position error, cable tensions), with more plots in tabs under the scene."""
+    actual position, position error, cable tensions), with more plots in tabs under the scene.
+
+    ``tension_range`` fixes the tension plot's y axis (the recorder sends the layout again at the end
+    with the range the tensions used, so that a tmax far above them does not squash the curves)."""
     figure = rrb.Grid(
         rrb.TimeSeriesView(origin=DESIRED_POSITION, name="Desired position (m)"),
         rrb.TimeSeriesView(origin=ACTUAL_POSITION, name="Actual position (m)"),
         rrb.TimeSeriesView(origin=POSITION_ERROR, name="Position error (m)"),
-        rrb.TimeSeriesView(origin=TENSION, name="Cable tensions (N)"),
+        rrb.TimeSeriesView(
+            origin=TENSION,
+            name="Cable tensions (N)",
+            axis_y=rrb.ScalarAxis(range=tension_range) if tension_range is not None else None,
+        ),
         grid_columns=2,
         name="Fig. 2/3",
     )
@@ -481,7 +493,7 @@ def rerun_binary() -> str | None:
 
 
 def viewer_command(
-    path: str | Path, web: bool = False, web_port: int = 9090, grpc_port: int = 9876
+    path: str | Path, web: bool = False, web_port: int = 9090, grpc_port: int = 9876, bind: str = "127.0.0.1"
 ) -> list[str]:
     """The ``rerun`` command line (the viewer shipped with rerun-sdk) that opens ``path``.
 
@@ -501,6 +513,8 @@ def viewer_command(
             str(grpc_port),
             "--renderer",
             "webgl",
+            "--bind",
+            bind,
         ]
     return cmd
 

@@ -71,3 +71,15 @@ def session_id() -> Iterator[str]:
         except OSError:
             pass
     assert not left, f"processes of session {sid} were left behind: {left}"
+
+
+ARTIFACTS = Path(__file__).resolve().parents[1] / "test-artifacts"
+
+
+@pytest.fixture(scope="session")
+def demo_recording(tmp_path_factory: pytest.TempPathFactory) -> tuple[dict, Path]:
+    """The demo (`make demo`'s run: the whole 15 kg CAROCA scenario), recorded once per test session."""
+    rrd = tmp_path_factory.mktemp("demo") / "caroca_15kg.rrd"
+    proc = cdpr("run", "caroca_15kg", "--rrd", str(rrd), "--session", f"demo{uuid.uuid4().hex[:8]}", "--quiet",
+                timeout=600, check=True)
+    return last_json_line(proc.stdout), rrd

@@ -211,7 +211,8 @@ def test_compose_services_are_complete() -> None:
     assert set(services) == {"router", *SESSION_SERVICES, "controller"}
     for name, s in services.items():
         assert s["image"] == "cdpr:latest", name
-        assert (COMPOSE.parent / s["build"]["context"] / s["build"]["dockerfile"]).resolve() == DOCKER / "Dockerfile"
+        dockerfile = COMPOSE.parent / s["build"]["context"] / s["build"]["dockerfile"]
+        assert dockerfile.resolve() == DOCKER / "Dockerfile"
         cmd = command_of(s)
         assert cmd[0] == name, f"{name}: the image's command must start with the service name"
         if name == "router":
@@ -234,7 +235,8 @@ def test_compose_services_are_complete() -> None:
     assert all("profiles" not in services[n] for n in ("router", *SESSION_SERVICES))
     assert "recordings" in yaml.safe_load(COMPOSE.read_text())["volumes"]
     # The settings reach every session service.
-    env = {"CDPR_SCENARIO": "caroca_1kg", "CDPR_SESSION": "s1", "CDPR_ARGS": "--duration 0.5", "CDPR_PORT": "9000"}
+    env = {"CDPR_SCENARIO": "caroca_1kg", "CDPR_SESSION": "s1", "CDPR_ARGS": "--duration 0.5",
+           "CDPR_PORT": "9000"}
     over = load_compose([COMPOSE], env)
     assert over["router"]["ports"] == ["9000:7447"]
     for name in (*SESSION_SERVICES, "controller"):

@@ -117,11 +117,12 @@ def test_core_errors_follow_the_run_metrics_definitions() -> None:
     pos = np.concatenate([b.errors.position for b in batches])[order]
     rot = np.concatenate([b.errors.orientation for b in batches])[order]
     want_pos, want_rot = metrics.errors()
-    assert steps[order].tolist() == list(range(n + 1))  # every state, the final one with the last setpoint
+    assert steps[order].tolist() == list(range(n))  # every state with a setpoint (the final one has none)
     assert np.allclose(np.linalg.norm(pos, axis=1), want_pos, rtol=1e-12, atol=0)
     assert np.allclose(np.linalg.norm(rot, axis=1), want_rot, rtol=1e-7, atol=1e-15)
-    last_sp, final = setpoints[-1], states[-1]
-    assert np.array_equal(pos[-1], np.subtract(last_sp.pose[:3], final.pose[:3]))
+    last_sp = setpoints[-1]
+    last_paired = next(s for s in states if s.step == last_sp.step)
+    assert np.array_equal(pos[-1], np.subtract(last_sp.pose[:3], last_paired.pose[:3]))
     # one row per step and stream, in step order within each batch
     for kind in ("states", "setpoints", "commands"):
         got = np.concatenate([getattr(b, kind).step for b in batches])
@@ -350,12 +351,12 @@ def test_the_recording_holds_the_whole_state_stream(recorded: tuple[dict[str, An
         )
         metrics.add_state(st, st.encode())
     assert metrics.digest() == summary["state_digest"]
-    # the recorder's own error series ends with the run's final error (final state vs last setpoint)
+    # the recorder's own error series ends with the run's final error (the last tick's step)
     k, _, err = _scalars(rrd, recording.POSITION_ERROR_NORM)
-    assert k[-1] == STEPS
+    assert k[-1] == STEPS - 1
     assert err[-1, 0] == pytest.approx(summary["final_position_error"], rel=1e-12)
     _, _, desired = _scalars(rrd, recording.DESIRED_POSITION)
-    assert np.linalg.norm(desired[-1] - pos[-1]) == pytest.approx(summary["final_position_error"], rel=1e-12)
+    assert np.linalg.norm(desired[-1] - pos[-2]) == pytest.approx(summary["final_position_error"], rel=1e-12)
 
 
 @pytest.mark.slow
@@ -409,13 +410,18 @@ def test_the_scene_is_static_plus_decimated_poses(recorded: tuple[dict[str, Any]
 def test_the_blueprint_is_sent_with_the_recording(recorded: tuple[dict[str, Any], Path]) -> None:
     _, rrd = recorded
     reader = RrdReader(str(rrd))
-    (bp,) = reader.blueprints()
-    assert bp.application_id == "cdpr"
+    # the layout sent at the start, and again at the end with the tension plot's range
+    blueprints = reader.blueprints()
+    assert len(blueprints) >= 1
     origins = set()
-    for chunk in reader.stream(store=bp).to_chunks():
-        rb = chunk.to_record_batch()
-        if "ViewBlueprint:space_origin" in rb.schema.names:
-            origins.update(v[0].lstrip("/") for v in rb.column("ViewBlueprint:space_origin").to_pylist())
+    names: set[str] = set()
+    for bp in blueprints:
+        assert bp.application_id == "cdpr"
+        for chunk in reader.stream(store=bp).to_chunks():
+            rb = chunk.to_record_batch()
+            names.update(rb.schema.names)
+            if "ViewBlueprint:space_origin" in rb.schema.names:
+                origins.update(v[0].lstrip("/") for v in rb.column("ViewBlueprint:space_origin").to_pylist())
     paper = {
         recording.DESIRED_POSITION,
         recording.ACTUAL_POSITION,

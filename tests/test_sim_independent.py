@@ -40,12 +40,12 @@ so that, up to O(dt²),
     ‖t_sim(T) − t(T)‖ ≤ dt (½ΔV + P(T)),     ‖log(R_sim(T) R(T)ᵀ)‖ ≤ dt (½ΔΩ + Q(T)).
 
 The constants are computed here by finite differences of the ODE along the replayed trajectory. On
-the 15 kg run: K_tt ≈ 2.6 s⁻² (the cables' lateral stiffness Σ f_i/(m l_i)), K_θθ ≈ 8.2 s⁻², ΔV ≈ 0.065
-m/s, J ≈ 0.15 m/s³; the bound is 1.5e-4 m and 1.8e-4 rad at dt = 1 ms (B_t = 0.147 m/s, B_θ = 0.181
-rad/s), the measured errors 3.42e-5 m (6 % above the leading term (dt/2)‖v(T) − v(0)‖ = 3.24e-5 m) and
-2.1e-6 rad. The bound is loose because it treats the restoring stiffness as if it could make errors
-grow; the errors at dt/2 and dt/4 show the first order directly: each halving of dt halves them
-(ratios 2.000 ± 0.001 measured).
+the 15 kg run: K_tt = 2.6 s⁻² (the cables' lateral stiffness, about Σ f_i/(m l_i)), K_θθ = 8.2 s⁻²,
+K_θt = 2.4 rad/(s²·m), ΔV = 0.065 m/s, J = 0.17 m/s³. The bound is then B_t·dt and B_θ·dt with
+B_t = 0.147 m/s and B_θ = 0.181 rad/s: 1.5e-4 m and 1.8e-4 rad at dt = 1 ms. Measured: 3.42e-5 m (6 %
+above the leading term (dt/2)‖v(T) − v(0)‖ = 3.24e-5 m) and 2.1e-6 rad. The bound is loose because it
+treats the restoring stiffness as if it could make errors grow; the errors at dt/2 and dt/4 show the
+first order directly: each halving of dt halves them (ratios 2.000 ± 0.001 measured).
 """
 
 from __future__ import annotations
@@ -70,7 +70,11 @@ G = np.array([0.0, 0.0, -9.81])
 
 def _cross_rows(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     return np.stack(
-        (a[:, 1] * b[:, 2] - a[:, 2] * b[:, 1], a[:, 2] * b[:, 0] - a[:, 0] * b[:, 2], a[:, 0] * b[:, 1] - a[:, 1] * b[:, 0]),
+        (
+            a[:, 1] * b[:, 2] - a[:, 2] * b[:, 1],
+            a[:, 2] * b[:, 0] - a[:, 0] * b[:, 2],
+            a[:, 0] * b[:, 1] - a[:, 1] * b[:, 0],
+        ),
         axis=1,
     )
 
@@ -79,7 +83,9 @@ def _skew(w: np.ndarray) -> np.ndarray:
     return np.array([[0.0, -w[2], w[1]], [w[2], 0.0, -w[0]], [-w[1], w[0], 0.0]])
 
 
-def newton_euler(robot: Robot, p: np.ndarray, R: np.ndarray, v: np.ndarray, w: np.ndarray, f: np.ndarray) -> np.ndarray:
+def newton_euler(
+    robot: Robot, p: np.ndarray, R: np.ndarray, v: np.ndarray, w: np.ndarray, f: np.ndarray
+) -> np.ndarray:
     """[a; α] of the platform (world frame, at the COM) under tensions f plus cable damping, from scratch."""
     rb = robot.platform_points @ R.T
     vec = robot.frame_points - p - rb
@@ -121,10 +127,26 @@ def run() -> Run:
         sim.step(tensions[k])
     y = np.concatenate((scenario.initial_position, scenario.initial_rotation.ravel(), np.zeros(6)))
     for k in range(STEPS):
-        sol = solve_ivp(_rhs, (k * dt, (k + 1) * dt), y, method="DOP853", rtol=1e-10, atol=1e-12, args=(robot, tensions[k]))
+        sol = solve_ivp(
+            _rhs,
+            (k * dt, (k + 1) * dt),
+            y,
+            method="DOP853",
+            rtol=1e-10,
+            atol=1e-12,
+            args=(robot, tensions[k]),
+        )
         assert sol.success
         y = sol.y[:, -1]
-    return Run(robot, dt, scenario.initial_position, scenario.initial_rotation, tensions, y[:3], y[3:12].reshape(3, 3))
+    return Run(
+        robot,
+        dt,
+        scenario.initial_position,
+        scenario.initial_rotation,
+        tensions,
+        y[:3],
+        y[3:12].reshape(3, 3),
+    )
 
 
 def replay(run: Run, substeps: int = 1) -> PlatformSim:
@@ -138,7 +160,8 @@ def replay(run: Run, substeps: int = 1) -> PlatformSim:
 
 def test_the_reference_is_a_rotation_and_the_run_is_not_trivial(run: Run) -> None:
     assert np.abs(run.R_ref.T @ run.R_ref - np.eye(3)).max() < 1e-12
-    assert np.all(run.tensions >= run.robot.tmin) and np.all(run.tensions <= run.robot.tmax)
+    assert np.all(run.tensions >= run.robot.tmin)
+    assert np.all(run.tensions <= run.robot.tmax)
     assert np.linalg.norm(run.p_ref - run.p0) > 0.01  # the platform really moved (2.3 cm in 1 s)
 
 
@@ -159,7 +182,7 @@ def test_one_step_accelerations_match_newton_euler(run: Run) -> None:
 
 
 def first_order_bound(run: Run) -> tuple[float, float]:
-    """B_t, B_θ of the bound ‖e_t(T)‖ ≤ B_t·dt, ‖e_θ(T)‖ ≤ B_θ·dt (module docstring), from the replay at dt."""
+    """B_t, B_θ of the bound ‖e_t(T)‖ ≤ B_t·dt, ‖e_θ(T)‖ ≤ B_θ·dt (module docstring), along the replay."""
     robot, h = run.robot, 1e-6
     sim = PlatformSim(robot, run.dt, run.p0, run.R0)
     K = np.zeros((2, 4))  # rows: a, α; columns: ∂/∂t, ∂/∂θ, ∂/∂v, ∂/∂ω (2-norms of the 3×3 blocks)

@@ -6,8 +6,8 @@ as numpy columns, ready for one ``rr.send_columns`` per entity. Rules:
 * One row per step and stream: a repeated state, setpoint or command (the clock's resends) is dropped,
   the first copy is kept (as in :class:`cdpr.metrics.RunMetrics`).
 * The tracking error of step k pairs state k with setpoint k, whatever their arrival order; the final
-  state (after the last tick, which has no setpoint) is paired with the last setpoint when the
-  recording ends — the definitions of :meth:`cdpr.metrics.RunMetrics.errors`.
+  state (after the last tick) has no setpoint and no error — the definitions of
+  :meth:`cdpr.metrics.RunMetrics.errors`.
 * Tensions are those the sim applied over [t − dt, t], so state 0 (nothing applied yet) has none.
 * 3D rows are decimated: every ``scene_every``-th state, plus the final one. The travelled path gets a
   point every ``path_every`` steps (and the final state) and is re-sent whole at each new point.
@@ -253,10 +253,6 @@ class RecorderCore:
         """Everything buffered since the last call, as columns. ``final``: the recording ends now."""
         p = self.params
         final_step = self.last_state.step if final and self.last_state is not None else None
-        if final_step is not None and self.last_setpoint is not None:
-            s = self.waiting_states.pop(final_step, None)
-            if s is not None:  # the state after the last tick, compared with the last setpoint
-                self.pairs.append((s, self.last_setpoint))
         states = sorted(self.states, key=lambda s: s.step)
         setpoints = sorted(self.setpoints, key=lambda s: s.step)
         commands = sorted(self.commands, key=lambda c: c.step)

@@ -52,6 +52,7 @@ class RecorderNode(Node):
         self.last_flush = time.monotonic()
         self.finish_by: float | None = None  # set when the clock has finished, until the final state is in
         self.closed = False
+        self.tension_peak = 0.0  # highest applied tension seen: sets the tension plot's range at the end
         self.recording_id = recording.recording_id(keys.session)
         self.rec = recording.Recording(
             self.recording_id, rrd=rrd, spawn=spawn, viewer=viewer, blueprint=recording.blueprint()
@@ -95,7 +96,9 @@ class RecorderNode(Node):
     def handle(self, event: Event) -> None:
         try:
             if event.kind == "state":
-                self.core.add_state(State.decode(event.payload, self.m))
+                state = State.decode(event.payload, self.m)
+                self.core.add_state(state)
+                self.tension_peak = max(self.tension_peak, *state.tensions)
             elif event.kind == "setpoint":
                 self.core.add_setpoint(Setpoint.decode(event.payload))
             elif event.kind == "command":
@@ -223,6 +226,8 @@ class RecorderNode(Node):
         self.closed = True
         try:
             self.flush(final=True)
+            if self.tension_peak > 0.0:
+                self.rec.send_blueprint(recording.blueprint(tension_range=(0.0, 1.15 * self.tension_peak)))
         finally:
             for problem in self.rec.close():
                 log(self.name, f"a viewer did not get everything: {problem}")

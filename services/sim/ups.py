@@ -23,40 +23,54 @@ the prismatic joint actuated", "virtual links … defined with negligible masses
 
 Damping, and why it is applied explicitly
 -----------------------------------------
-``robot.cable_damping`` c acts on the prismatic joint (force ``−c·l̇_i``), ``robot.passive_damping``
-c_p on the universal joints (torques ``−c_p·q̇_U``) and on the spherical joints (torque
-``−c_p (ω_platform − ω_lower)`` on the platform, the opposite on the lower link). All are evaluated
-with the velocities at the start of the step and added to the commands, exactly like the cable damping
-of ``PlatformSim``. DART's own joint damping (``setDampingCoefficient``) is *not* used: DART integrates
-it implicitly, ``−c·q̇_{k+1}``, inside each skeleton's *unconstrained* step, before the loop-closure
+``robot.cable_damping`` c acts on the prismatic joint (force ``−c·l̇_i``), ``robot.passive_damping`` c_p
+on the universal joints (torques ``−c_p·q̇_U``) and on the spherical joints (torque
+``−c_p (ω_platform − ω_lower)`` on the platform, the opposite on the lower link). All are evaluated with
+the velocities at the start of the step and added to the commands, like the cable damping of
+``PlatformSim``. DART's own joint damping (``setDampingCoefficient``) is *not* used: DART integrates it
+implicitly, ``−c·q̇_{k+1}``, inside each skeleton's *unconstrained* step, before the loop-closure
 impulses. For a near-massless leg that velocity is dominated by ``f·dt/m_link`` (the tension
-accelerating the light link alone), so the built-in damping would absorb the fraction
-``c·dt/(m_link + c·dt)`` of every tension: half of it with m_link = 1e-3 kg, c = 1 N·s/m, dt = 1 ms.
-Measured: the platform's one-step acceleration was then off by 3.3 m/s² (22 times the whole damping
-effect) instead of 1e-5 m/s².
+accelerating the light link alone), so the built-in damping absorbs the fraction
+``c·dt/(m_link + c·dt)`` of every tension (half of it at m_link = 1e-3 kg, c = 1 N·s/m, dt = 1 ms; 91 %
+at 1e-4 kg). Measured on CAROCA at 15 kg: the one-step acceleration was then off by 3.3 m/s² (1e-3 kg
+links) and 6.0 m/s² (1e-4 kg) instead of ≤ 1e-5 m/s² (ratio 1.82, as the two fractions predict); it
+approaches the explicit result only for links of 1 kg and more.
 
 Link masses
 -----------
-Each link is a 1 g solid sphere of 5 mm radius (the Gazebo cable's visual radius): m_link = 1e-3 kg,
-inertia 1e-8 kg·m². Their effect, to first order: the lower link's centre of mass moves with b_i, so
-the platform behaves as if it carried m extra point masses m_link at its platform points (the upper
-link sits on the fixed point a_i and only adds its 1e-8 kg·m² about it). For CAROCA at 15 kg that is
-+8 g (5.3e-4 relative) and +0.33 % to 0.65 % of each principal moment; the one-step accelerations
-match Newton–Euler of that augmented body to ~1e-7 relative, and the unaugmented body to 2e-3 relative
-(tests/test_ups.py). In the closed loop the controller, unaware of the 8 g, sees an extra weight of
-0.078 N: a steady offset of ~0.078/(15·1500) ≈ 3.5 µm. Lighter links change nothing visible (1e-4 kg
-gives the same trajectory to within the test tolerance) but worsen the LCP's conditioning (platform
-to link mass ratio 1.5e5); heavier ones (1e-2 kg) perturb the platform ten times more.
+Each link is a solid sphere of mass ``LINK_MASS`` = 1e-4 kg and radius 5 mm (the Gazebo cable's visual
+radius), inertia 1e-9 kg·m². Their effect, to first order: the lower link's centre of mass moves with b_i,
+so the platform behaves as if it carried m point masses m_link at its platform points; the upper link
+sits on the fixed point a_i and only adds its tiny inertia about it. The one-step accelerations match
+Newton–Euler of that augmented body to 5e-9 relative at rest, and within the velocity-level closure
+bias (``m_link × centripetal accelerations``, see below) when moving; the bare body's to
+``‖M⁻¹ΔM‖·‖ẍ − g‖``, ‖M⁻¹ΔM‖ = 1.6e-4 for CAROCA at 15 kg (tests/test_ups.py). In closed loop the
+controller, unaware of the links, sees an extra weight of m·m_link·g: a steady offset of about
+m·m_link·g/(M·Kp). Measured over the 11 s of ``caroca_15kg``, max ‖t_UPS − t_ideal‖:
+
+    m_link (kg)   1e-6     1e-5     1e-4     1e-3     1e-2
+    15 kg         9.3e-8   1.1e-7   3.9e-7   3.5e-6   3.5e-5 m
+    1 kg                            5.8e-6   5.3e-5        m
+
+Linear in m_link down to 1e-4 kg; below, other effects (the closure gaps) dominate, and at 1e-6 kg the
+gaps start to grow (6e-6 m, against 3e-6 m) as the LCP's mass ratio reaches 1.5e7. 1e-4 kg keeps the
+1 kg platform within 6 µm of the ideal model, with the gaps unchanged.
 
 Accuracy of the loop closure
 ----------------------------
-DART enforces the closures at the velocity level with the Jacobians at the start of the step, so each
-step leaves an O(dt²·|ω_leg|²·l) position gap at each spherical joint, which the error reduction
-(1 %/step) keeps bounded; the gap ‖a_i + l_i u_i − (t + R b_i)‖ is reported by
-:meth:`UpsSim.closure_errors` and the prismatic lengths equal the inverse-kinematics lengths to that
-gap (< 1e-6 m on the 15 kg scenario). State: pose and twist are read from the platform body (world
-frame, at its centre of mass), cable lengths and rates are the prismatic joints' positions and
-velocities, tensions are as applied. Same inputs, bit-identical outputs.
+DART enforces the closures at the velocity level with the Jacobians at the start of the step,
+``J(q_k) v_{k+1} = 0`` instead of ``J q̈ + J̇ q̇ = 0``. The missed velocity-product terms (the platform
+point's and the leg end's centripetal and Coriolis accelerations) are corrected by an impulse carried
+by the light side, so they perturb the platform by at most m_link times those accelerations per leg,
+and each step leaves an O(dt²) position gap at each spherical joint, which the error reduction
+(1 %/step) keeps bounded. The gap ‖a_i + l_i u_i − (t + R b_i)‖ is reported by
+:meth:`UpsSim.closure_errors`; on the 15 kg scenario it stays below 3.2e-6 m, and the prismatic lengths
+equal the inverse-kinematics lengths to 2.6e-6 m. Cost: ~85 µs a step against ~15 µs for
+``PlatformSim`` (one 24-unknown LCP a step).
+
+State: pose and twist are read from the platform body (world frame, at its centre of mass), cable
+lengths and rates are the prismatic joints' positions and velocities, tensions are as applied. Same
+inputs, bit-identical outputs.
 """
 
 from __future__ import annotations
@@ -67,8 +81,6 @@ import dartpy as dart
 import numpy as np
 from cdpr.robot import GRAVITY, Robot
 from cdpr.rotation import Array, matrix_to_quat
-from numpy.typing import ArrayLike
-
 from cdpr_sim.core import (
     PlatformState,
     StepReport,
@@ -78,8 +90,9 @@ from cdpr_sim.core import (
     clamp_tensions,
     planar_coordinates,
 )
+from numpy.typing import ArrayLike
 
-LINK_MASS = 1e-4  # kg, each of the two virtual links of a leg
+LINK_MASS = 1e-4  # kg, each of the two virtual links of a leg (module docstring: why)
 LINK_RADIUS = 0.005  # m, the links' inertia is a solid sphere's of this radius (the cable's visual radius)
 
 
@@ -89,7 +102,6 @@ class _Leg:
 
     skeleton: dart.dynamics.Skeleton
     universal: dart.dynamics.UniversalJoint
-    prismatic: dart.dynamics.PrismaticJoint
     lower: dart.dynamics.BodyNode
 
 
@@ -148,7 +160,9 @@ class UpsSim:
         self._world.addSkeleton(platform)
         self._joint = joint
         self._body = body
-        link_inertia = dart.dynamics.Inertia(self.link_mass, np.zeros(3), np.eye(3) * 0.4 * self.link_mass * LINK_RADIUS**2)
+        link_inertia = dart.dynamics.Inertia(
+            self.link_mass, np.zeros(3), np.eye(3) * 0.4 * self.link_mass * LINK_RADIUS**2
+        )
         self._legs = tuple(self._make_leg(i, link_inertia) for i in range(robot.m))
         self._tensions = _readonly(np.zeros(robot.m))
         self._snap: _Snapshot | None = None
@@ -168,11 +182,12 @@ class UpsSim:
         upper.setName(f"cable_{i}_upper")
         upper.setInertia(inertia)
         prismatic, lower = skeleton.createPrismaticJointAndBodyNodePair(upper)
+        prismatic.setActuatorType(dart.dynamics.ActuatorType.FORCE)  # DART's default, stated
         prismatic.setAxis(np.array([0.0, 0.0, 1.0]))
         lower.setName(f"cable_{i}_lower")
         lower.setInertia(inertia)
         self._world.addSkeleton(skeleton)
-        return _Leg(skeleton, universal, prismatic, lower)
+        return _Leg(skeleton, universal, lower)
 
     @property
     def t(self) -> float:
@@ -265,7 +280,7 @@ class UpsSim:
 
     # -- dynamics ---------------------------------------------------------------------------------
     def step(self, tensions: np.ndarray) -> StepReport:
-        """Clamp ``tensions`` (m,) to [0, tmax], command them (plus damping) on the legs, integrate one ``dt``."""
+        """Clamp ``tensions`` (m,) to [0, tmax], command them and the damping on the legs, step ``dt``."""
         commanded = np.asarray(tensions, dtype=float)
         if commanded.shape != (self.robot.m,):
             raise ValueError(f"expected {self.robot.m} tensions, got shape {commanded.shape}")
@@ -274,11 +289,12 @@ class UpsSim:
         damping = self.robot.cable_damping * s.rates
         c_p = self.robot.passive_damping
         forces = np.empty((self.robot.m, 3))
-        forces[:, :2] = 0.0  # universal joints
+        forces[:, :2] = -c_p * s.leg_velocities[:, :2]  # universal joints
         forces[:, 2] = -(applied + damping)  # the prismatic axis points away from a_i
         for leg, f in zip(self._legs, forces, strict=True):
             leg.skeleton.setForces(f)
-        if c_p > 0.0:  # spherical joints: −c_p (ω_platform − ω_lower) on the platform, the opposite on the leg
+        # Spherical joints: −c_p (ω_platform − ω_lower) on the platform, the opposite on the lower link.
+        if c_p > 0.0:
             w = self._body.getAngularVelocity()
             total = np.zeros(3)
             for leg in self._legs:
