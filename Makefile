@@ -4,7 +4,7 @@ VENV := .venv
 PY := $(VENV)/bin/python
 PIP := $(VENV)/bin/pip
 
-.PHONY: demo test lint clean
+.PHONY: demo test lint clean experiments
 
 $(VENV)/.installed: pyproject.toml
 	$(PYTHON) -m venv $(VENV)
@@ -60,3 +60,6 @@ certs:
 	done; \
 	chmod 644 ca.pem router.pem router.key users.txt *.json5; \
 	echo "wrote $(CERTS_DIR): ca.pem ca.key router.pem router.key users.txt $(addsuffix .json5,$(ZENOH_USERS))"
+
+experiments: .venv
+	$(VENV)/bin/cdpr experiments

@@ -432,6 +432,20 @@ def router(listen: tuple[str, ...], connect: tuple[str, ...], zenoh_config: str 
     log("router", "stopped")
 
 
+@cli.command()
+@click.option("--docs", type=click.Path(), default="docs", show_default=True, help="where results.md and its figures go")
+@click.option("--runs", type=click.Path(), default="runs/experiments", show_default=True, help="where the recordings go")
+@click.option("--duration", type=float, default=None, help="cut every scenario to this many seconds (quick check)")
+@click.option("--only", multiple=True, help="run only these scenarios")
+def experiments(docs: str, runs: str, duration: float | None, only: tuple[str, ...]) -> None:
+    """Re-run the paper's experiments through the distributed loop and regenerate docs/results.md."""
+    from pathlib import Path
+
+    from cdpr.experiments import run_experiments
+
+    sys.exit(run_experiments(Path(docs), Path(runs), duration, only))
+
+
 def main(argv: list[str] | None = None) -> None:
     try:
         cli.main(args=argv, prog_name="cdpr", standalone_mode=True)

@@ -73,6 +73,7 @@ class RunMetrics:
         def rms(x: np.ndarray) -> float | None:
             return float(np.sqrt(np.mean(x * x))) if x.size else None
 
+        change = np.abs(np.diff(t, axis=0)).max() if t.shape[0] > 1 else None
         return {
             "rms_position_error": rms(pos),
             "max_position_error": float(pos.max()) if pos.size else None,
@@ -81,6 +82,7 @@ class RunMetrics:
             "max_orientation_error": float(rot.max()) if rot.size else None,
             "tension_min": float(t.min()) if t.size else None,
             "tension_max": float(t.max()) if t.size else None,
+            "max_tension_change": float(change) if change is not None else None,
             "clamped_commands": last.clamped if last is not None else 0,
             "infeasible_commands": self.infeasible_commands,
             "state_digest": self.digest(),

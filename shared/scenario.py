@@ -162,6 +162,12 @@ def scenario_from_spec(spec: ScenarioSpec, where: str, base_dir: Path | None = N
         trajectory = spec.trajectory.build()
     except ValueError as exc:
         raise InputError(f"{where}: trajectory: {exc}") from None
+    from cdpr.tda import make_tda
+
+    try:
+        make_tda(spec.controller.tda.method, **spec.controller.tda.options)
+    except (TypeError, ValueError) as exc:
+        raise InputError(f"{where}: controller.tda.options: {str(exc).splitlines()[0]}") from None
     duration = spec.duration if spec.duration is not None else trajectory.duration + 1.0
     if spec.initial is not None:
         p0 = np.array(spec.initial.position, dtype=float)

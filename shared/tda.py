@@ -311,16 +311,28 @@ class ImprovedClosedForm(TensionDistributor):
 class _QpDistributor(TensionDistributor):
     """Shared machinery of the QP methods: min ½α‖f‖² + qᵀf s.t. W f = w, bounds."""
 
-    def __init__(self, solver: str = "osqp", atol: float = 1e-6, warm_active_set: bool = True) -> None:
+    def __init__(
+        self,
+        solver: str = "osqp",
+        atol: float = 1e-6,
+        warm_active_set: bool = True,
+        exact: bool = True,
+        solver_settings: dict[str, Any] | None = None,
+    ) -> None:
         """``solver``: a qpsolvers backend; ``warm_active_set``: first try the previous call's active set
-        (exact KKT check, no solver call), which is what a warm-started active-set method does."""
+        (exact KKT check, no solver call), which is what a warm-started active-set method does.
+        ``exact=False`` takes the solver's answer as it comes (no active-set refinement, no warm active
+        set, the solver's own default tolerances unless ``solver_settings`` says otherwise): the
+        typical real-time QP setup, kept to reproduce the paper's tension spikes."""
         super().__init__(atol)
         if solver not in qpsolvers.available_solvers:
             raise ValueError(
                 f"QP solver {solver!r} is not installed (available: {', '.join(qpsolvers.available_solvers)})"
             )
         self.solver = solver
-        self.warm_active_set = warm_active_set
+        self.exact = exact
+        self.warm_active_set = warm_active_set and exact
+        self.solver_settings = dict(solver_settings or {})
         self.solver_calls = 0  # how many calls needed the QP solver (the active set changed)
         self.calls = 0
 
@@ -344,7 +356,8 @@ class _QpDistributor(TensionDistributor):
             P, A = alpha * np.eye(m), prob.W
         prev = self._previous_for(m)
         initvals = None if prev is None else np.clip(prev, lb, ub) / s
-        settings = dict(_OSQP_SETTINGS) if self.solver == "osqp" else {}
+        settings = dict(_OSQP_SETTINGS) if self.solver == "osqp" and self.exact else {}
+        settings.update(self.solver_settings)
         problem = qpsolvers.Problem(P, q / s, A=A, b=prob.w / s, lb=lb / s, ub=ub / s)
         with warnings.catch_warnings():
             warnings.simplefilter("ignore")  # failures are reported through the status instead
@@ -356,6 +369,9 @@ class _QpDistributor(TensionDistributor):
         if x is None or np.shape(x) != (m,) or not np.all(np.isfinite(x)):
             return None
         x = np.asarray(x, dtype=float) * s
+        if not self.exact:
+            x = np.clip(x, lb, ub)
+            return (x, "optimal") if sub.residual(x) <= prob.tol else None
         exact = _refine(alpha, q, sub, prob.w, x)
         if exact is not None:
             return exact, "optimal"
@@ -384,6 +400,8 @@ class _QpDistributor(TensionDistributor):
         if answer is not None:
             f, status = answer
             return f, "rate_relaxed" if tight is not None and status == "optimal" else status
+        if not self.exact:
+            return None, "solver_failed"
         # The solver failed: start the active-set refinement from the bounded least-squares answer.
         nearest = nearest_admissible(prob.W, prob.w, prob.lb, prob.ub)
         if prob.residual(nearest) <= prob.tol:
