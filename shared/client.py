@@ -153,17 +153,20 @@ class SessionInfo:
                 tda=str(ctrl.get("tda", "qp")),
                 raw=msg,
             )
+        except ProtocolError:
+            raise
         except KeyError as exc:
             raise ProtocolError(f"session/info: {exc.args[0]}: missing") from None
         except (TypeError, ValueError, AttributeError) as exc:
-            if isinstance(exc, ProtocolError):
-                raise
             raise ProtocolError(f"session/info: {exc}") from None
 
 
 def fetch_info(session: zenoh.Session, keys: Keys, stop: StopFlag | None = None,
-               timeout: float | None = None) -> SessionInfo | None:
-    """``get`` ``session/info`` until the clock answers; None if ``stop`` is set or ``timeout`` passes."""
+               timeout: float | None = None, who: str = "controller") -> SessionInfo | None:
+    """``get`` ``session/info`` until the clock answers; None if ``stop`` is set or ``timeout`` passes.
+
+    Raises :class:`ProtocolError` if the answer is not a valid description of a session.
+    """
     deadline = None if timeout is None else time.monotonic() + timeout
     waited = False
     while not stop:
@@ -173,7 +176,7 @@ def fetch_info(session: zenoh.Session, keys: Keys, stop: StopFlag | None = None,
         if deadline is not None and time.monotonic() >= deadline:
             return None
         if not waited:
-            log("controller", f"waiting for session {keys.session!r} to answer {keys.info}")
+            log(who, f"waiting for session {keys.session!r} to answer {keys.info}")
             waited = True
         time.sleep(INFO_RETRY)
     return None
@@ -326,7 +329,7 @@ class _ControllerNode(Node):
     def declare(self, session: zenoh.Session, inbox: Inbox) -> list[Any]:
         info = None
         if self.fetch:
-            info = fetch_info(session, self.keys, self.stop, self.info_timeout)
+            info = fetch_info(session, self.keys, self.stop, self.info_timeout, self.name)
             if info is None:
                 if not self.stop:
                     log(self.name, f"no answer on {self.keys.info} within {self.info_timeout:g} s")

@@ -9,6 +9,7 @@ port: a real session runs end to end through the router with the example remote 
 
 from __future__ import annotations
 
+import json
 import os
 import re
 import shlex
@@ -24,6 +25,7 @@ from typing import IO, Any
 
 import pytest
 import yaml
+import zenoh
 
 from conftest import free_port
 
@@ -116,9 +118,12 @@ def localise(name: str, service: dict[str, Any], compose_dir: Path, scratch: Pat
             if a == target or a.startswith(target + "/"):
                 a = str(host) + a[len(target):]
         args.append(a)
-    if args[0] == "router" and "--listen" not in args:  # the config's 0.0.0.0:7447, kept on loopback
-        proto = "tls" if any("secure" in a for a in args) else "tcp"
-        args += ["--listen", f"{proto}/127.0.0.1:{port}"]
+    if args[0] == "router" and "--listen" not in args:  # the config file's endpoints, kept on loopback
+        conf = zenoh.Config.from_file(str(workdir / args[args.index("--zenoh-config") + 1]))
+        for endpoint in json.loads(conf.get_json("listen/endpoints")):
+            proto, _, address = endpoint.partition("/")
+            assert address.endswith(":7447"), endpoint
+            args += ["--listen", f"{proto}/127.0.0.1:{port}"]
     return Container(name, [sys.executable, "-m", "cdpr", *args], workdir, scratch / f"{name}.log")
 
 
@@ -266,8 +271,9 @@ def test_docker_compose_validates_and_agrees(files: list[Path], tmp_path: Path) 
     argv = [str(COMPOSE_BIN)]
     for f in files:
         argv += ["-f", str(f)]
+    clean = {k: v for k, v in os.environ.items() if not k.startswith(("CDPR_", "COMPOSE_"))}
     proc = subprocess.run([*argv, "config"], capture_output=True, text=True, timeout=60,
-                          env={**os.environ, **env}, cwd=ROOT)
+                          env={**clean, **env}, cwd=ROOT)
     assert proc.returncode == 0, proc.stderr
     resolved = yaml.safe_load(proc.stdout)["services"]
     ours = load_compose(files, env)
@@ -276,11 +282,12 @@ def test_docker_compose_validates_and_agrees(files: list[Path], tmp_path: Path) 
         assert command_of(s) == command_of(ours[name]), name
         assert s["image"] == "cdpr:latest"
     assert resolved["router"]["ports"][0] in ("7447:7447", {"published": 7447, "target": 7447})
-    broken = tmp_path / "compose.yaml"  # and the same call rejects a broken file
-    broken.write_text("services:\n  sim:\n    image: cdpr\n    ports: 7447\n    command: [sim\n")
+    broken = tmp_path / "compose.yaml"  # and the same call rejects a file that breaks the schema
+    broken.write_text("services:\n  sim:\n    image: cdpr\n    depends_on: 5\n")
     proc = subprocess.run([str(COMPOSE_BIN), "-f", str(broken), "config"], capture_output=True, text=True,
-                          timeout=60)
+                          timeout=60, env=clean)
     assert proc.returncode != 0
+    assert "depends_on" in proc.stdout + proc.stderr
 
 
 @pytest.mark.slow
