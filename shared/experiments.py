@@ -59,9 +59,10 @@ def run_one(exp: Experiment, runs: Path, figures: Path, duration: float | None) 
         cmd += ["--duration", repr(duration)]
     started = time.monotonic()
     proc = subprocess.run(cmd, capture_output=True, text=True, check=False)
+    summary = json.loads(proc.stdout.strip().splitlines()[-1]) if proc.stdout.strip() else {}
     if proc.returncode != 0:
-        raise RuntimeError(f"{exp.scenario}: cdpr run exited {proc.returncode}: {proc.stderr.strip()[-500:]}")
-    summary = json.loads(proc.stdout.strip().splitlines()[-1])
+        raise RuntimeError(f"{exp.scenario}: cdpr run exited {proc.returncode} "
+                           f"(exit codes {summary.get('exit_codes')}): {proc.stderr.strip()[-500:]}")
     write_report(rrd, figures / exp.scenario)
     scenario = load_scenario(exp.scenario, {"duration": duration})
     log("experiments", f"{exp.scenario}: {summary['steps']} steps in {time.monotonic() - started:.0f} s, "

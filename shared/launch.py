@@ -27,7 +27,9 @@ from cdpr.scenario import Scenario
 from cdpr.service import PARENT_ENV
 from cdpr.transport import Inbox, StopFlag, log, open_session, zenoh_config
 
-STOP_GRACE = 4.0  # seconds a child gets to stop (by itself, then after SIGTERM) before it is killed
+STOP_GRACE = 4.0  # seconds a child gets to stop after SIGTERM before it is killed
+FINISH_GRACE = 60.0  # after a normal end, seconds the services get to leave by themselves (the recorder
+#                     may still be writing a large file)
 
 
 def free_port() -> int:
@@ -165,7 +167,7 @@ def run_session(
                     log("cdpr", f"step {max(k, 0)}/{n} ({100.0 * max(k, 0) / n:.0f} %), {rate:.0f} steps/s")
         finally:
             # After a normal end the services leave by themselves; otherwise they are told to.
-            codes = children.stop(wait_first=STOP_GRACE if exit_ok else 0.0)
+            codes = children.stop(wait_first=FINISH_GRACE if exit_ok else 0.0)
             raw.extend((ev.kind, ev.payload) for ev in inbox.drain(0.05))  # the services' last words
             for s in subs:
                 s.undeclare()

@@ -9,11 +9,13 @@ import socket
 import subprocess
 import threading
 import time
+from pathlib import Path
 from collections import defaultdict
 
 import pytest
 import zenoh
 
+from cdpr import recording
 from cdpr.protocol import Keys
 from cdpr.soak import SessionWatcher
 from cdpr.transport import zenoh_config
@@ -122,10 +124,11 @@ def _child_pid(session_id: str, service: str, timeout: float = 60.0) -> int:
     raise AssertionError(f"no {service} process for session {session_id}")
 
 
-@pytest.mark.parametrize("service", ["clock", "sim", "trajectory", "controller"])
-def test_sigterm_to_one_service_stops_the_whole_run(session_id: str, service: str) -> None:
+@pytest.mark.parametrize("service", ["clock", "sim", "trajectory", "controller", "recorder"])
+def test_sigterm_to_one_service_stops_the_whole_run(session_id: str, service: str, tmp_path: Path) -> None:
+    rrd = tmp_path / "run.rrd"
     run = subprocess.Popen(
-        [*CDPR, "run", "caroca_15kg", "--session", session_id],
+        [*CDPR, "run", "caroca_15kg", "--session", session_id, "--rrd", str(rrd)],
         stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
     )
     progress: list[str] = []
@@ -145,6 +148,10 @@ def test_sigterm_to_one_service_stops_the_whole_run(session_id: str, service: st
     assert s["exit_ok"] is False
     assert s["exit_codes"][service] == 128 + signal.SIGTERM
     assert any(f"{service} exited with code 143" in ln for ln in progress)
+    # the recording of the interrupted run is complete and valid
+    rerun = [recording.rerun_binary() or "rerun", "rrd", "verify", str(rrd)]
+    verify = subprocess.run(rerun, capture_output=True, text=True, timeout=120, check=False)
+    assert verify.returncode == 0, verify.stderr
 
 
 def test_start_order_does_not_change_the_states(session_id: str) -> None:
