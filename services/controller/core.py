@@ -50,5 +50,11 @@ class ControllerCore:
             self.gains,
             self.variant,
         )
-        W = inverse_kinematics(self.robot, position, R).wrench_matrix[self.rows]
+        W6 = inverse_kinematics(self.robot, position, R).wrench_matrix
+        W = W6[self.rows]
+        if self.robot.cable_damping > 0.0:
+            # The cables' viscous damping (the robot file's, applied by the sim along each cable as
+            # c·l̇ on top of the tension) is a known external wrench of eq. 5: compensate it like gravity.
+            rates = -(W6.T @ np.asarray(state.twist))  # l̇ = J v, J = −Wᵀ
+            wrench = wrench - W @ (self.robot.cable_damping * rates)
         return self.tda.solve(W, wrench, self.robot.tmin, self.robot.tmax)
