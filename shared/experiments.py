@@ -86,12 +86,9 @@ def position_difference(a: Path, b: Path) -> float:
     return float(np.linalg.norm(pa - pb, axis=1).max())
 
 
-def _mm(x: float | None) -> str:
-    return "–" if x is None else f"{x * 1e3:.4f}"
-
-
-def _mrad(x: float | None) -> str:
-    return "–" if x is None else f"{x * 1e3:.4f}"
+def _milli(x: float | None) -> str:
+    """Metres as millimetres (radians as milliradians), four significant digits."""
+    return "–" if x is None else f"{x * 1e3:.4g}"
 
 
 def render(results: list[dict[str, Any]], ups_diff: float | None, duration: float | None) -> str:
@@ -121,8 +118,8 @@ def render(results: list[dict[str, Any]], ups_diff: float | None, duration: floa
         )
         below = s["max_tension_change"] <= r["bound"]
         lines.append(
-            f"| `{exp.scenario}` | {exp.what} | {_mm(s['rms_position_error'])} | {_mm(s['max_position_error'])} "
-            f"| {_mm(s['final_position_error'])} | {_mrad(s['rms_orientation_error'])} "
+            f"| `{exp.scenario}` | {exp.what} | {_milli(s['rms_position_error'])} | {_milli(s['max_position_error'])} "
+            f"| {_milli(s['final_position_error'])} | {_milli(s['rms_orientation_error'])} "
             f"| {s['tension_min']:.2f} – {s['tension_max']:.2f} (limits {r['tmin']:g} – {r['tmax']:g}) "
             f"| {s['max_tension_change']:.4g} {'≤' if below else '>'} | {r['bound']:.4g} | {verdict} |"
         )
