@@ -49,7 +49,6 @@ class ClockNode(Node):
         self.reason = ""
         self.finished_at: float | None = None
         self.faults: dict[str, dict[str, int]] = {}  # every service's fault counters (stats/{service})
-        self.lost: set[str] = set()  # participants that left after tick 0
         self.warn = RateLimitedLog(self.name)
         self._tick: zenoh.Publisher | None = None
         self._status: zenoh.Publisher | None = None
@@ -89,6 +88,12 @@ class ClockNode(Node):
                 self.count("bad_states")
                 self.warn("bad_state", f"dropped a bad sim/state: {exc}")
                 return
+            if state.step < self.core.reached:
+                # Only a sim that started afresh goes back in time (a reconnecting sim, e.g. after a
+                # router restart, carries on from its step): the platform's state is lost.
+                self.abort(f"the sim restarted: its state went back from step {self.core.reached} to "
+                           f"step {state.step}; the platform's state is lost", now)
+                return
             self.core.on_state(state.step, now)
             if self.core.finished and self.finished_at is None:
                 self.finish(now)
@@ -109,14 +114,7 @@ class ClockNode(Node):
             self.present.discard(service)
             if service in self.expected and self.finished_at is None:
                 log(self.name, f"{service} left the session at step {self.core.reached}")
-                if self.core.started_at is not None:
-                    self.lost.add(service)
         if self.finished_at is not None:
-            return
-        if event.kind == "alive" and service == "sim" and "sim" in self.lost:
-            # A new sim starts from the scenario's initial state: the platform's state at the current
-            # step is gone, so the run cannot go on as if nothing happened.
-            self.abort(f"the sim restarted at step {self.core.reached}: the platform's state is lost", now)
             return
         if self.missing:
             if not self.core.paused:

@@ -102,6 +102,11 @@ class SimNode(Node):
         repeat = k in self.seen_ticks
         if k >= self.step:
             self.seen_ticks.add(k)
+        if self.published_step < 0 and k != self.step:
+            # A sim that joins a session already under way announces where it is (step 0): the clock
+            # sees the step go back and ends the session, since this sim's state is not the session's.
+            self.publish_state()
+            return
         if k != self.step:
             return
         if self.published_step != self.step or repeat:
