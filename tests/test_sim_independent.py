@@ -166,17 +166,24 @@ def test_the_reference_is_a_rotation_and_the_run_is_not_trivial(run: Run) -> Non
 
 
 def test_one_step_accelerations_match_newton_euler(run: Run) -> None:
-    """(1): finite differences of the sim's velocities against Newton–Euler, to 1e-6 relative."""
+    """(1): finite differences of the sim's velocities against Newton–Euler, to 1e-6 relative.
+
+    The closed loop holds the platform's orientation so well that the recorded tensions make almost no
+    angular acceleration; each is perturbed by up to ±5 % (seeded) so that both blocks are exercised.
+    """
     sim = PlatformSim(run.robot, run.dt, run.p0, run.R0)
     measured, predicted = np.empty((STEPS, 6)), np.empty((STEPS, 6))
-    for k, f in enumerate(run.tensions):
+    rng = np.random.default_rng(7)
+    tensions = np.clip(run.tensions * (1.0 + 0.05 * rng.uniform(-1.0, 1.0, run.tensions.shape)),
+                       run.robot.tmin, run.robot.tmax)
+    for k, f in enumerate(tensions):
         s = sim.state()
         predicted[k] = newton_euler(run.robot, s.position, s.rotation, s.twist[:3], s.twist[3:], f)
         sim.step(f)
         measured[k] = (sim.state().twist - s.twist) / run.dt
     for block in (slice(0, 3), slice(3, 6)):
         scale = np.linalg.norm(predicted[:, block], axis=1).max()
-        assert scale > 0.0
+        assert scale > 1e-3  # a real acceleration, not round-off
         err = np.linalg.norm(measured[:, block] - predicted[:, block], axis=1).max()
         assert err <= 1e-6 * scale, (err, scale)
 
