@@ -106,7 +106,7 @@ def serve(node: Node, conf: zenoh.Config, stop: StopFlag | None = None) -> int:
                             log(node.name, f"dropped a bad clock/status message: {exc}")
                     else:
                         node.handle(event)
-                    if node.done:
+                    if node.done or stop:  # a signal must not wait for a backlog to drain
                         break
                 node.idle(time.monotonic())
                 if time.monotonic() - last_stats >= 1.0:
