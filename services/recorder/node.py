@@ -126,6 +126,7 @@ class RecorderNode(Node):
     def _check_finished(self, now: float) -> None:
         if self.finish_by is None or self.final_status is None:
             return
+        took = time.monotonic() - closing
         last = self.core.last_state.step if self.core.last_state is not None else -1
         if last >= self.final_status.step:
             self.done = True
@@ -224,6 +225,7 @@ class RecorderNode(Node):
         if self.closed:
             return
         self.closed = True
+        closing = time.monotonic()
         try:
             self.flush(final=True)
             if self.tension_peak > 0.0:
@@ -231,11 +233,13 @@ class RecorderNode(Node):
         finally:
             for problem in self.rec.close():
                 log(self.name, f"a viewer did not get everything: {problem}")
+        took = time.monotonic() - closing
         last = self.core.last_state.step if self.core.last_state is not None else -1
         where = f" to {self.rrd}" if self.rrd else ""
         log(
             self.name,
             f"recorded {self.core.recorded_states} states (last step {last}){where}; "
             f"recording id {self.recording_id}; duplicates {self.core.duplicates}, "
-            f"repeated ticks {self.core.repeated_ticks}, bad messages {self.bad_messages}",
+            f"repeated ticks {self.core.repeated_ticks}, bad messages {self.bad_messages}; "
+            f"closed in {took:.2f} s",
         )
