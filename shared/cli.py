@@ -446,6 +446,92 @@ def experiments(docs: str, runs: str, duration: float | None, only: tuple[str, .
     sys.exit(run_experiments(Path(docs), Path(runs), duration, only))
 
 
+# ------------------------------------------------------------------------------------------------
+# Workspace and SDF export (docs/workspace.md)
+
+
+@cli.command()
+@click.argument("robot")
+@click.option("--payload", type=float, default=0.0, show_default=True,
+              help="kg rigidly attached at the centre of mass")
+@click.option("--mass", type=float, default=None,
+              help="whole platform mass, kg (solid-shape inertia), as a scenario's platform.mass")
+@click.option("--step", type=float, default=0.1, show_default=True, help="grid spacing, m (at most)")
+@click.option("--orientation", type=float, nargs=3, default=(0.0, 0.0, 0.0), show_default=True,
+              help="fixed platform orientation: roll pitch yaw, rad")
+@click.option("--tmin", type=float, default=None, help="N (default: the robot's)")
+@click.option("--tmax", type=float, default=None, help="N (default: the robot's)")
+@click.option("--rrd", type=click.Path(), default=None, help="write the points to this .rrd file")
+@click.option("--spawn", is_flag=True, help="show the points in a new Rerun viewer")
+def workspace(robot: str, payload: float, mass: float | None, step: float,
+              orientation: tuple[float, float, float], tmin: float | None, tmax: float | None,
+              rrd: str | None, spawn: bool) -> None:
+    """Static wrench-feasible workspace of ROBOT on a grid over its frame box (JSON; points to Rerun)."""
+    import time
+
+    from cdpr.robot import load_robot
+    from cdpr.rotation import rpy_to_matrix
+    from cdpr.workspace import compute_workspace, record_workspace
+
+    r = load_robot(robot)
+    r = (r if mass is None else r.with_mass(mass)).with_payload(payload)
+    lo, hi = (r.tmin if tmin is None else tmin), (r.tmax if tmax is None else tmax)
+    if not (np.isfinite(lo) and np.isfinite(hi)) or lo < 0 or lo > hi:
+        raise InputError(f"--tmin/--tmax: need 0 <= tmin <= tmax, got {lo} and {hi}")
+    if not (np.isfinite(step) and step > 0):
+        raise InputError(f"--step: must be a positive length in m, got {step}")
+    if not np.all(np.isfinite(orientation)):
+        raise InputError("--orientation: roll, pitch and yaw must be finite")
+    R = rpy_to_matrix(*orientation)
+    start = time.perf_counter()
+    ws = compute_workspace(r, step, R, 0.0, lo, hi)
+    seconds = time.perf_counter() - start
+    box = ws.bounding_box()
+    out: dict[str, Any] = {
+        "robot": r.name, "mass": r.mass, "payload": payload, "tmin": lo, "tmax": hi,
+        "orientation_rpy": list(orientation), "step": step, "spacing": ws.spacing.tolist(),
+        "grid": list(ws.shape),
+        "points": int(ws.points.shape[0]), "feasible": int(ws.feasible.sum()), "fraction": ws.fraction,
+        "bounding_box": None if box is None else {"min": box[0].tolist(), "max": box[1].tolist()},
+        "seconds": seconds, "us_per_point": 1e6 * seconds / max(1, ws.points.shape[0]), "rrd": rrd,
+    }
+    if rrd is not None or spawn:
+        info = {"workspace": dict(out), "robot": r.summary()}
+        out["problems"] = record_workspace(r, ws, R, rrd=rrd, spawn=spawn, info=info)
+    _emit(out)
+
+
+@cli.command("export-sdf")
+@click.argument("robot")
+@click.option("-o", "--output", default=None,
+              help="SDF file to write (default: ROBOT's name + .sdf; - for stdout)")
+@click.option("--tree", is_flag=True,
+              help="leave out the ball joints that close the loops (for tree-only parsers)")
+def export_sdf(robot: str, output: str | None, tree: bool) -> None:
+    """Write ROBOT as an SDF 1.6 world: frame, platform, a U-P-S leg per cable (the seed paper's model)."""
+    import xml.etree.ElementTree as ET
+
+    from cdpr.robot import load_robot
+    from cdpr.sdf import sdf_string
+
+    r = load_robot(robot)
+    text = sdf_string(r, close_loops=not tree)
+    if output == "-":
+        click.echo(text, nl=False)
+        return
+    path = output or f"{r.name}.sdf"
+    try:
+        with open(path, "w") as fh:
+            fh.write(text)
+    except OSError as exc:
+        raise InputError(f"-o: cannot write {path}: {exc.strerror or exc}") from None
+    model = ET.fromstring(text).find("world/model")
+    assert model is not None
+    joints = model.findall("joint")
+    _emit({"robot": r.name, "file": path, "links": len(model.findall("link")), "joints": len(joints),
+           "ball_joints": sum(j.get("type") == "ball" for j in joints)})
+
+
 def main(argv: list[str] | None = None) -> None:
     try:
         cli.main(args=argv, prog_name="cdpr", standalone_mode=True)

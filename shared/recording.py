@@ -48,6 +48,8 @@ DESIRED = "world/desired"  # Transform3D: the desired pose (3D rate)
 DESIRED_SHAPE = "world/desired/shape"  # static translucent ghost of the platform
 PATH = "world/path"  # line strip of the travelled path (path rate)
 PLANNED_PATH = "world/planned_path"  # static line strip of the trajectory, sampled
+WORKSPACE_FEASIBLE = "world/workspace/feasible"  # static points: wrench-feasible grid points (cdpr workspace)
+WORKSPACE_INFEASIBLE = "world/workspace/infeasible"  # static faint points: the other grid points
 
 # Time series (every step)
 DESIRED_POSITION = "desired/position"  # [x, y, z] of the setpoint, m

@@ -162,6 +162,9 @@ def scenario_from_spec(spec: ScenarioSpec, where: str, base_dir: Path | None = N
         trajectory = spec.trajectory.build()
     except ValueError as exc:
         raise InputError(f"{where}: trajectory: {exc}") from None
+    from cdpr.workspace import check_trajectory
+
+    check_trajectory(robot, trajectory, spec.controller.variant, where)  # static and feed-forward wrenches
     from cdpr.tda import make_tda
 
     try:
