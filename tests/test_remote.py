@@ -386,3 +386,36 @@ def test_sdk_controller_reconnects_through_a_restarted_router(session_id: str, t
     assert "controller left the session" in log and "resuming" in log, log
     assert "up to step 2999" in procs.log("remote")
     print(f"router B restarted at step {killed_at}; session rate {s['rate']:.0f} steps/s")
+
+
+def _port_free(port: int) -> bool:
+    import socket
+
+    with socket.socket() as s:
+        try:
+            s.bind(("127.0.0.1", port))
+        except OSError:
+            return False
+    return True
+
+
+@pytest.mark.slow
+@pytest.mark.skipif(not _port_free(7447), reason="port 7447 is taken on this machine")
+def test_the_readme_commands_on_the_default_port(session_id: str, tmp_path: Path) -> None:
+    """Exactly the README's recipe: `cdpr up --without controller` (default endpoint tcp/127.0.0.1:7447)
+    and `python examples/remote_controller.py --connect tcp/127.0.0.1:7447`."""
+    procs = Processes()
+    try:
+        up = procs.start("up", [*CDPR, "up", "caroca_15kg", "--duration", "1", "--session", session_id,
+                                "--without", "controller", "--listen", "tcp/127.0.0.1:7447", "--quiet"],
+                         tmp_path, tmp_path / "up.log")
+        procs.start("remote", [sys.executable, str(EXAMPLES / "remote_controller.py"),
+                               "--connect", "tcp/127.0.0.1:7447", "--session", session_id],
+                    tmp_path, tmp_path / "remote.log")
+        codes = procs.wait(["up", "remote"], timeout=180)
+        assert codes == {"up": 0, "remote": 0}, procs.report()
+        assert up.returncode == 0
+    finally:
+        procs.close()
+    s = last_json_line(procs.log("up"))
+    assert s["exit_ok"] is True and s["steps"] == 1000
