@@ -126,7 +126,6 @@ class RecorderNode(Node):
     def _check_finished(self, now: float) -> None:
         if self.finish_by is None or self.final_status is None:
             return
-        took = time.monotonic() - closing
         last = self.core.last_state.step if self.core.last_state is not None else -1
         if last >= self.final_status.step:
             self.done = True
