@@ -10,7 +10,6 @@ import subprocess
 import threading
 import time
 from pathlib import Path
-from collections import defaultdict
 
 import pytest
 import zenoh

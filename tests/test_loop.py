@@ -16,7 +16,7 @@ import zenoh
 
 from cdpr.protocol import Command, Keys, Status
 from cdpr.transport import zenoh_config
-from conftest import CDPR, cdpr, free_port, last_json_line, processes_mentioning, wait_no_processes
+from conftest import CDPR, cdpr, free_port, last_json_line, wait_no_processes
 
 pytestmark = pytest.mark.slow
 
