@@ -126,7 +126,9 @@ def test_bad_commands_do_not_stop_the_sim(session_id: str) -> None:
     assert s["steps"] == 1500
     assert "dropped a bad controller/command" in err
     sim_faults = s["faults"]["sim"]
-    assert sim_faults["bad_commands"] >= sent * 8 // 11 * 0.5  # most of the bad ones were seen and counted
+    # Each batch of 11 holds 9 undecodable commands; those still queued when the session ends are never
+    # read, so only a good share of them can be counted.
+    assert sim_faults["bad_commands"] >= sent * 9 // 11 // 4
     assert sim_faults.get("future_commands", 0) + sim_faults.get("stale_commands", 0) > 0
     assert s["final_position_error"] < 1e-3
 
