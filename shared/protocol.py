@@ -67,6 +67,10 @@ class Keys:
         return f"{self.prefix}/controller/command"
 
     @property
+    def sensors(self) -> str:
+        return f"{self.prefix}/sim/sensors"
+
+    @property
     def info(self) -> str:
         return f"{self.prefix}/session/info"
 
@@ -92,6 +96,7 @@ class Keys:
             "state": self.state,
             "setpoint": self.setpoint,
             "command": self.command,
+            "sensors": self.sensors,
             "info": self.info,
             "alive": self.alive("{service}"),
             "stats": self.stats("{service}"),
@@ -106,6 +111,7 @@ WIRING: dict[str, dict[str, tuple[str, ...]]] = {
     "state": {"publishers": ("sim",), "subscribers": ("clock", "controller", "recorder")},
     "setpoint": {"publishers": ("trajectory",), "subscribers": ("controller", "recorder")},
     "command": {"publishers": ("controller",), "subscribers": ("sim", "recorder")},
+    "sensors": {"publishers": ("sim",), "subscribers": ()},
     "info": {"publishers": ("clock",), "subscribers": ()},
     "stats": {"publishers": ("every service",), "subscribers": ("clock",)},
 }
@@ -277,10 +283,14 @@ class Setpoint:
 
 @dataclass(frozen=True, slots=True)
 class Command:
-    """``controller/command``: the cable tensions (N) to apply over [t_k, t_k + dt].
+    """``controller/command``: the cable tensions (N) — or the unstretched cable lengths (m) — to apply
+    over [t_k, t_k + dt].
 
-    ``tensions`` must be finite; the sim clamps each to [0, tmax] (a cable only pulls) and counts the
-    clamps. Optional ``feasible``/``status`` report the controller's tension distribution outcome.
+    Exactly one of ``tensions`` and ``lengths`` is on the wire. ``tensions`` must be finite; the sim
+    clamps each to [0, tmax] (a cable only pulls) and counts the clamps. ``lengths`` (a session whose
+    scenario has ``controller.output: lengths``: winch-driven cables) must be finite and > 0; in a
+    Python ``Command`` of lengths, ``tensions`` is ``()``. Optional ``feasible``/``status`` report the
+    controller's tension distribution outcome.
     """
 
     KEY: ClassVar[str] = "command"
@@ -289,20 +299,32 @@ class Command:
     tensions: tuple[float, ...]
     feasible: bool = True
     status: str = "ok"
+    lengths: tuple[float, ...] | None = None
+
+    @property
+    def kind(self) -> str:
+        """``"lengths"`` or ``"tensions"``: which command this is."""
+        return "tensions" if self.lengths is None else "lengths"
+
+    @property
+    def values(self) -> tuple[float, ...]:
+        """The commanded numbers, tensions or lengths."""
+        return self.tensions if self.lengths is None else self.lengths
 
     def encode(self) -> bytes:
         return pack(
             {
                 "step": self.step,
                 "t": self.t,
-                "tensions": _floats(self.tensions),
+                self.kind: _floats(self.values),
                 "feasible": bool(self.feasible),
                 "status": self.status,
             }
         )
 
     @classmethod
-    def decode(cls, payload: bytes, cables: int | None = None) -> Command:
+    def decode(cls, payload: bytes, cables: int | None = None, expect: str | None = None) -> Command:
+        """``expect`` (``"tensions"`` or ``"lengths"``): the kind the receiver takes (the other: an error)."""
         msg = unpack(payload)
         feasible = msg.get("feasible", True)
         status = msg.get("status", "ok")
@@ -310,7 +332,64 @@ class Command:
             raise ProtocolError(f"feasible: expected true/false, got {type(feasible).__name__}")
         if not isinstance(status, str):
             raise ProtocolError(f"status: expected a string, got {type(status).__name__}")
-        return cls(_int(msg, "step"), _float(msg, "t"), _vector(msg, "tensions", cables), feasible, status)
+        step, t = _int(msg, "step"), _float(msg, "t")
+        if "lengths" not in msg:
+            if expect == "lengths":
+                raise ProtocolError("lengths: missing (this session's controller commands cable lengths)")
+            return cls(step, t, _vector(msg, "tensions", cables), feasible, status)
+        if "tensions" in msg:
+            raise ProtocolError("lengths: a command carries tensions or lengths, not both")
+        if expect == "tensions":
+            raise ProtocolError("lengths: this session's controller commands tensions, not lengths")
+        lengths = _vector(msg, "lengths", cables)
+        for i, x in enumerate(lengths):
+            if x <= 0.0:
+                raise ProtocolError(f"lengths[{i}]: must be > 0, got {x}")
+        return cls(step, t, (), feasible, status, lengths)
+
+
+@dataclass(frozen=True, slots=True)
+class Sensors:
+    """``sim/sensors``: what the simulated sensors read at step ``step`` (noisy, biased, quantised).
+
+    ``encoders`` (m, m): the cable lengths the winch encoders measure; ``load_cells`` (m, N): the cable
+    tensions at the winches; ``accel`` (m/s²) and ``gyro`` (rad/s): the platform IMU's specific force
+    (acceleration minus gravity: +9.81 up at rest) and angular velocity, both in the platform frame.
+    The ground truth stays in ``sim/state``.
+    """
+
+    KEY: ClassVar[str] = "sensors"
+    step: int
+    t: float
+    encoders: tuple[float, ...]
+    load_cells: tuple[float, ...]
+    accel: tuple[float, ...]
+    gyro: tuple[float, ...]
+
+    def encode(self) -> bytes:
+        return pack(
+            {
+                "step": self.step,
+                "t": self.t,
+                "encoders": _floats(self.encoders),
+                "load_cells": _floats(self.load_cells),
+                "accel": _floats(self.accel),
+                "gyro": _floats(self.gyro),
+            }
+        )
+
+    @classmethod
+    def decode(cls, payload: bytes, cables: int | None = None) -> Sensors:
+        msg = unpack(payload)
+        encoders = _vector(msg, "encoders", cables)
+        return cls(
+            _int(msg, "step"),
+            _float(msg, "t"),
+            encoders,
+            _vector(msg, "load_cells", len(encoders)),
+            _vector(msg, "accel", 3),
+            _vector(msg, "gyro", 3),
+        )
 
 
 @dataclass(frozen=True, slots=True)

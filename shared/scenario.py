@@ -58,6 +58,11 @@ class ControllerSpec(_Strict):
     kp: Gain = 1500.0
     kd: Gain = 1500.0
     tda: TdaSpec = Field(default_factory=TdaSpec)
+    output: Literal["tensions", "lengths"] = Field(
+        "tensions",
+        description="what the controller commands: cable tensions, or unstretched cable lengths (winch "
+        "position control; needs sim.cable_model elastic or sag)",
+    )
 
     @field_validator("kp", "kd")
     @classmethod
@@ -69,12 +74,92 @@ class ControllerSpec(_Strict):
         return v
 
 
+class ElasticSpec(_Strict):
+    """Straight elastic cables (cdpr_sim.elastic)."""
+
+    EA: PositiveFloat = Field(1.0e6, description="axial stiffness, N (k = EA / l0)")
+    damping: FiniteFloat = Field(200.0, ge=0.0, description="damping of the stretch rate, N·s/m")
+
+
+class SagSpec(_Strict):
+    """Heavy elastic cables hanging as Irvine's elastic catenary (cdpr_sim.sag)."""
+
+    mass_per_length: PositiveFloat = Field(0.1, description="kg/m")
+    EA: PositiveFloat = Field(1.0e6, description="axial stiffness, N")
+    damping: FiniteFloat = Field(200.0, ge=0.0, description="damping of the stretch rate, N·s/m")
+    tension_at: Literal["platform", "frame"] = Field("platform", description="where a tension command holds")
+
+
+class WinchSpec(_Strict):
+    """The winch drives of the elastic and sag models (cdpr_sim.winch.WinchParams)."""
+
+    radius: PositiveFloat = Field(0.05, description="drum radius, m")
+    inertia: PositiveFloat = Field(1e-3, description="rotor and drum inertia about the drum axis, kg·m²")
+    friction: FiniteFloat = Field(0.01, ge=0.0, description="viscous friction, N·m·s/rad")
+    torque_max: PositiveFloat = Field(50.0, description="torque (current) limit, N·m")
+    kp: FiniteFloat = Field(400.0, ge=0.0, description="PID on the drum angle, N·m/rad")
+    ki: FiniteFloat = Field(8000.0, ge=0.0, description="N·m/(rad·s)")
+    kd: FiniteFloat = Field(1.0, ge=0.0, description="N·m·s/rad")
+
+
+Bias = FiniteFloat | list[FiniteFloat]
+
+
+class EncoderSpec(_Strict):
+    resolution: FiniteFloat = Field(0.0, ge=0.0, description="quantisation step, m (0: none)")
+    sigma: FiniteFloat = Field(0.0, ge=0.0, description="white noise, m")
+
+
+class LoadCellSpec(_Strict):
+    sigma: FiniteFloat = Field(0.0, ge=0.0, description="white noise, N")
+    bias: Bias = Field(0.0, description="N: one number for every cell or one per cable")
+
+
+class ImuSpec(_Strict):
+    accel_sigma: FiniteFloat = Field(0.0, ge=0.0, description="m/s²")
+    accel_bias: Bias = Field(0.0, description="m/s², body frame: one number or [x, y, z]")
+    gyro_sigma: FiniteFloat = Field(0.0, ge=0.0, description="rad/s")
+    gyro_bias: Bias = Field(0.0, description="rad/s, body frame: one number or [x, y, z]")
+
+    @field_validator("accel_bias", "gyro_bias")
+    @classmethod
+    def _three(cls, v: float | list[float]) -> float | list[float]:
+        if isinstance(v, list) and len(v) != 3:
+            raise ValueError(f"a bias is one number or 3 numbers [x, y, z], got {len(v)}")
+        return v
+
+
+class SensorsSpec(_Strict):
+    """Simulated sensors, published on sim/sensors (cdpr_sim.sensors)."""
+
+    seed: int = Field(0, ge=0, description="seed of the noise (a reading is a function of seed and step)")
+    encoders: EncoderSpec = Field(default_factory=EncoderSpec)
+    load_cells: LoadCellSpec = Field(default_factory=LoadCellSpec)
+    imu: ImuSpec = Field(default_factory=ImuSpec)
+
+
 class SimSpec(_Strict):
-    cable_model: Literal["ideal", "ups"] = Field(
+    cable_model: Literal["ideal", "ups", "elastic", "sag"] = Field(
         "ideal",
         description="ideal: massless inextensible pull-only force elements; ups: the seed paper's "
-        "universal-prismatic-spherical legs closed with ball-joint constraints",
+        "universal-prismatic-spherical legs closed with ball-joint constraints; elastic: straight elastic "
+        "cables on winches; sag: heavy elastic cables (elastic catenary) on winches",
     )
+    elastic: ElasticSpec = Field(default_factory=ElasticSpec)
+    sag: SagSpec = Field(default_factory=SagSpec)
+    winch: WinchSpec = Field(default_factory=WinchSpec)
+    substeps: int | None = Field(None, ge=1, description="sub-steps per dt in lengths mode (default: chosen "
+                                 "for stability and accuracy from the cables' stiffness)")
+    sensors: SensorsSpec | None = Field(None, description="publish simulated sensor readings on sim/sensors")
+
+    @model_validator(mode="after")
+    def _params_match_model(self) -> SimSpec:
+        for name, models in (("elastic", ("elastic",)), ("sag", ("sag",)), ("winch", ("elastic", "sag")),
+                             ("substeps", ("elastic", "sag"))):
+            if name in self.model_fields_set and self.cable_model not in models:
+                raise ValueError(f"{name}: used by cable_model {' or '.join(models)} only "
+                                 f"(this scenario's is {self.cable_model})")
+        return self
 
 
 class InitialSpec(_Strict):
@@ -99,6 +184,9 @@ class ScenarioSpec(_Strict):
     def _dt_sane(self) -> ScenarioSpec:
         if self.dt > 0.1:
             raise ValueError(f"dt: {self.dt} s is too coarse for a cable robot (at most 0.1)")
+        if self.controller.output == "lengths" and self.sim.cable_model not in ("elastic", "sag"):
+            raise ValueError(f"controller.output: lengths needs sim.cable_model elastic or sag (winch-driven "
+                             f"cables), not {self.sim.cable_model}")
         return self
 
 
@@ -124,6 +212,11 @@ class Scenario:
     def total_steps(self) -> int:
         return round(self.duration / self.dt)
 
+    @property
+    def output(self) -> str:
+        """What the controller commands: ``tensions`` or ``lengths`` (unstretched cable lengths)."""
+        return self.spec.controller.output
+
     def info(self) -> dict[str, Any]:
         """A JSON/msgpack-friendly description (served on ``session/info``)."""
         return {
@@ -132,8 +225,11 @@ class Scenario:
             "duration": self.duration,
             "total_steps": self.total_steps,
             "robot": self.robot.summary(),
-            "sim": {"cable_model": self.cable_model},
+            "sim": {"cable_model": self.cable_model,
+                    **({self.cable_model: getattr(self.spec.sim, self.cable_model).model_dump()}
+                       if self.cable_model in ("elastic", "sag") else {})},
             "controller": {
+                "output": self.output,
                 "variant": self.variant,
                 "kp": self.gains.kp.tolist(),
                 "kd": self.gains.kd.tolist(),
@@ -158,6 +254,10 @@ def scenario_from_spec(spec: ScenarioSpec, where: str, base_dir: Path | None = N
     if tmin > tmax:
         raise InputError(f"{where}: limits: tmin ({tmin}) must not exceed tmax ({tmax})")
     robot = robot.replace(tmin=float(tmin), tmax=float(tmax))
+    bias = spec.sim.sensors.load_cells.bias if spec.sim.sensors is not None else 0.0
+    if isinstance(bias, list) and len(bias) != robot.m:
+        raise InputError(f"{where}: sim.sensors.load_cells.bias: expected one number or {robot.m} (one per "
+                         f"cable), got {len(bias)}")
     try:
         trajectory = spec.trajectory.build()
     except ValueError as exc:

@@ -1,8 +1,18 @@
-"""The controller's step: (state k, setpoint k) → tensions k. No I/O.
+"""The controller's step: (state k, setpoint k) → tensions k, or unstretched cable lengths k. No I/O.
 
 Feedback linearisation (eq. 6–7) gives the wrench; the scenario's tension distribution method turns it
 into tensions within [tmin, tmax]. The distributor keeps its warm start / previous tensions between
 calls, so the same sequence of inputs gives the same sequence of outputs.
+
+Length output (scenario ``controller: {output: lengths}``, for winch-driven elastic or sagging cables):
+the command is the unstretched length each winch must pay out so that, at the **desired** pose, each
+cable holds the tension the distribution chose — inverse kinematics minus the static stretch
+(:func:`stretch_compensated_lengths`: ``l0 = l·EA/(EA + f)``, i.e. ``l − f l0/EA``). The feedback acts
+through f: a platform below its setpoint gets larger tensions, hence shorter cables. The cables' EA is
+the scenario's ``sim`` section (the controller knows it). Sagging cables are treated as straight: the
+sag is a model error this controller does not compensate. (Compensating it with the catenary's length
+for the commanded tension makes the loop limit-cycle whenever the distribution puts a cable at tmin:
+there the sag's compliance, ∝ w²l³/T³, multiplies every change of tension into centimetres of cable.)
 """
 
 from __future__ import annotations
@@ -10,14 +20,25 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
+from numpy.typing import ArrayLike
 
 from cdpr.control import Gains, Variant, controlled_rows, feedback_linearisation
 from cdpr.kinematics import inverse_kinematics
 from cdpr.protocol import Setpoint, State
 from cdpr.robot import Robot
-from cdpr.rotation import quat_to_matrix
+from cdpr.rotation import Array, quat_to_matrix
 from cdpr.scenario import Scenario
 from cdpr.tda import TdaResult, TensionDistributor, make_tda
+
+
+def stretch_compensated_lengths(robot: Robot, position: ArrayLike, R: ArrayLike, tensions: ArrayLike,
+                                EA: float) -> Array:
+    """Unstretched lengths (m,) of straight elastic cables holding ``tensions`` at the pose: l·EA/(EA + f).
+
+    ``l`` is the inverse-kinematics length; the static law ``f = EA (l − l0)/l0`` solved for l0.
+    """
+    lengths = inverse_kinematics(robot, position, R).lengths
+    return lengths * EA / (EA + np.asarray(tensions, dtype=float))
 
 
 @dataclass
@@ -26,10 +47,34 @@ class ControllerCore:
     gains: Gains
     variant: Variant
     tda: TensionDistributor
+    output: str = "tensions"  # or "lengths"
+    axial_stiffness: float | None = None  # EA, N, of the cables: needed for length output
+
+    def __post_init__(self) -> None:
+        if self.output not in ("tensions", "lengths"):
+            raise ValueError(f"output must be 'tensions' or 'lengths' (got {self.output!r})")
+        EA = self.axial_stiffness
+        if self.output == "lengths" and not (EA is not None and 0.0 < EA < np.inf):
+            raise ValueError(f"length output needs the cables' axial_stiffness EA > 0 (got {EA})")
 
     @classmethod
     def from_scenario(cls, scenario: Scenario) -> ControllerCore:
-        return cls(scenario.robot, scenario.gains, scenario.variant, make_tda(scenario.tda_method, **scenario.tda_options))
+        sim = scenario.spec.sim
+        EA = {"elastic": sim.elastic.EA, "sag": sim.sag.EA}.get(sim.cable_model)
+        tda = make_tda(scenario.tda_method, **scenario.tda_options)
+        return cls(scenario.robot, scenario.gains, scenario.variant, tda, scenario.output, EA)
+
+    def lengths(self, setpoint: Setpoint, tensions: ArrayLike) -> Array:
+        """The unstretched lengths that hold ``tensions`` at the setpoint's pose (length output)."""
+        if self.axial_stiffness is None:
+            raise ValueError("length output needs the cables' axial_stiffness EA")
+        R = quat_to_matrix(setpoint.pose[3:])
+        return stretch_compensated_lengths(self.robot, setpoint.pose[:3], R, tensions, self.axial_stiffness)
+
+    def command(self, state: State, setpoint: Setpoint) -> tuple[TdaResult, Array | None]:
+        """The distribution of step k and, for length output, the lengths to command (else None)."""
+        result = self.step(state, setpoint)
+        return result, (self.lengths(setpoint, result.tensions) if self.output == "lengths" else None)
 
     @property
     def rows(self) -> list[int]:

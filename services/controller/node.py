@@ -59,7 +59,7 @@ class ControllerNode(Node):
             self.answer(state_k, setpoint_k)
 
     def answer(self, state: State, setpoint: Setpoint) -> None:
-        result = self.core.step(state, setpoint)
+        result, lengths = self.core.command(state, setpoint)
         if not result.feasible:
             self.infeasible += 1
             self.count("infeasible_distributions")
@@ -68,6 +68,8 @@ class ControllerNode(Node):
         assert self._pub is not None
         self._pub.put(
             Command(state.step, state.t, tuple(result.tensions.tolist()), result.feasible, result.status).encode()
+            if lengths is None else
+            Command(state.step, state.t, (), result.feasible, result.status, tuple(lengths.tolist())).encode()
         )
         self.answered = max(self.answered, state.step)
         for book in (self.states, self.setpoints):

@@ -18,6 +18,7 @@ from cdpr.scenario import Scenario
 from cdpr.service import Node
 from cdpr.transport import PUBLISH_OPTS, Event, Inbox, RateLimitedLog, log
 from cdpr_sim.core import PlatformSim, PlatformState
+from cdpr_sim.sensors import SensorConfig, SensorSuite
 
 
 def state_message(s: PlatformState, clamped: int) -> State:
@@ -38,6 +39,12 @@ def make_sim(scenario: Scenario) -> PlatformSim:
         from cdpr_sim.ups import UpsSim
 
         return UpsSim(scenario.robot, scenario.dt, scenario.initial_position, scenario.initial_rotation)
+    if scenario.cable_model in ("elastic", "sag"):  # winch-driven cables: tension or length commands
+        from cdpr_sim.elastic import ElasticSim
+        from cdpr_sim.sag import SagSim
+
+        model = ElasticSim if scenario.cable_model == "elastic" else SagSim
+        return model.from_scenario(scenario)  # type: ignore[return-value]
     return PlatformSim(scenario.robot, scenario.dt, scenario.initial_position, scenario.initial_rotation)
 
 
@@ -58,14 +65,21 @@ class SimNode(Node):
         self.last_command: Command | None = None  # the command of the last step taken
         self.warn = RateLimitedLog(self.name)
         self._pub: zenoh.Publisher | None = None
+        self.command_kind = scenario.output  # "tensions" or "lengths": the commands this sim takes
+        sensors = scenario.spec.sim.sensors
+        self.sensors = None if sensors is None else SensorSuite(SensorConfig.from_spec(sensors, self.m),
+                                                                  scenario.dt)
+        self._sensors_pub: zenoh.Publisher | None = None
 
     # -- wiring -----------------------------------------------------------------------------------
     def declare(self, session: zenoh.Session, inbox: Inbox) -> list[Any]:
         self._pub = session.declare_publisher(self.keys.state, **PUBLISH_OPTS)
+        self._sensors_pub = session.declare_publisher(self.keys.sensors, **PUBLISH_OPTS)
         return [
             inbox.subscribe(session, self.keys.tick, "tick"),
             inbox.subscribe(session, self.keys.command, "command"),
             self._pub,
+            self._sensors_pub,
         ]
 
     def handle(self, event: Event) -> None:
@@ -79,7 +93,7 @@ class SimNode(Node):
             self.on_tick(tick.step)
         elif event.kind == "command":
             try:
-                cmd = Command.decode(event.payload, self.m)
+                cmd = Command.decode(event.payload, self.m, self.command_kind)
             except ProtocolError as exc:
                 self.count("bad_commands")
                 self.warn("bad_command", f"dropped a bad controller/command: {exc}")
@@ -94,6 +108,8 @@ class SimNode(Node):
     def publish_state(self) -> None:
         assert self._pub is not None
         self._pub.put(state_message(self.sim.state(), self.clamped).encode())
+        if self.sensors is not None and self._sensors_pub is not None:  # sim/sensors, right after the state
+            self._sensors_pub.put(self.sensors.read(self.sim).encode())
         self.published_step = self.step
 
     def on_tick(self, k: int) -> None:
@@ -118,7 +134,7 @@ class SimNode(Node):
     def on_command(self, cmd: Command) -> None:
         if cmd.step < self.step:
             last = self.last_command
-            if last is not None and cmd.step == last.step and cmd.tensions != last.tensions:
+            if last is not None and cmd.step == last.step and cmd.values != last.values:
                 # The first valid command of a step wins; a different one for the same step means
                 # a second controller is publishing in this session.
                 self.count("conflicting_commands")
@@ -134,7 +150,7 @@ class SimNode(Node):
         if self.step > self.allowed:
             self.pending = cmd  # the controller was quicker than the tick: wait for the clock
             return
-        report = self.sim.step(np.asarray(cmd.tensions))
+        report = self.sim.step(np.asarray(cmd.values))
         self.last_command = cmd
         if report.clamped_low or report.clamped_high:
             self.clamped += 1
@@ -142,7 +158,10 @@ class SimNode(Node):
             self.warn(
                 "clamped",
                 f"step {cmd.step}: clamped {report.clamped_low} tension(s) below 0 and "
-                f"{report.clamped_high} above tmax = {self.scenario.robot.tmax:g} N",
+                f"{report.clamped_high} above tmax = {self.scenario.robot.tmax:g} N"
+                if cmd.lengths is None else
+                f"step {cmd.step}: clamped {report.clamped_high} length(s) above max_length = "
+                f"{self.scenario.robot.max_length:g} m",
             )
         self.seen_ticks.discard(cmd.step)
         self.publish_state()
