@@ -87,6 +87,12 @@ class PlatformState:
     cable_rates: np.ndarray  # (m,) l̇ = J v
     tensions: np.ndarray  # (m,) as applied (clamped) during the step that led here; zeros at step 0
 
+    @classmethod
+    def of(cls, step: int, t: float, position: np.ndarray, rotation: np.ndarray, twist: np.ndarray,
+           lengths: np.ndarray, rates: np.ndarray, tensions: np.ndarray) -> PlatformState:
+        """A state from read-only arrays (the quaternion is derived from the rotation)."""
+        return cls(step, t, position, _readonly(matrix_to_quat(rotation)), rotation, twist, lengths, rates, tensions)
+
 
 @dataclass(frozen=True)
 class StepReport:
@@ -221,17 +227,8 @@ class PlatformSim:
     def state(self) -> PlatformState:
         """The current state. Its arrays are read-only and never change afterwards: safe to keep."""
         s = self._snapshot()
-        return PlatformState(
-            step=self.step_count,
-            t=self.t,
-            position=s.position,
-            quaternion=_readonly(matrix_to_quat(s.rotation)),
-            rotation=s.rotation,
-            twist=s.twist,
-            cable_lengths=s.lengths,
-            cable_rates=s.rates,
-            tensions=self._tensions,
-        )
+        return PlatformState.of(self.step_count, self.t, s.position, s.rotation, s.twist, s.lengths, s.rates,
+                                self._tensions)
 
     # -- dynamics ---------------------------------------------------------------------------------
     def step(self, tensions: np.ndarray) -> StepReport:

@@ -80,7 +80,7 @@ from dataclasses import dataclass
 import dartpy as dart
 import numpy as np
 from cdpr.robot import GRAVITY, Robot
-from cdpr.rotation import Array, matrix_to_quat
+from cdpr.rotation import Array
 from cdpr_sim.core import (
     PlatformState,
     StepReport,
@@ -261,17 +261,8 @@ class UpsSim:
     def state(self) -> PlatformState:
         """The current state. Its arrays are read-only and never change afterwards: safe to keep."""
         s = self._snapshot()
-        return PlatformState(
-            step=self.step_count,
-            t=self.t,
-            position=s.position,
-            quaternion=_readonly(matrix_to_quat(s.rotation)),
-            rotation=s.rotation,
-            twist=s.twist,
-            cable_lengths=s.lengths,
-            cable_rates=s.rates,
-            tensions=self._tensions,
-        )
+        return PlatformState.of(self.step_count, self.t, s.position, s.rotation, s.twist, s.lengths, s.rates,
+                                self._tensions)
 
     def closure_errors(self) -> Array:
         """(m,) distance, m, between each leg's end and its platform point (the spherical joints' gaps)."""

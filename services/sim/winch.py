@@ -64,7 +64,7 @@ import numpy as np
 from cdpr.dynamics import gravity_wrench, mass_matrix
 from cdpr.kinematics import inverse_kinematics
 from cdpr.robot import GRAVITY, Robot
-from cdpr.rotation import Array, cross_rows, matrix_to_quat
+from cdpr.rotation import Array, cross_rows
 from cdpr.scenario import Scenario, SimSpec
 from cdpr.tda import make_tda
 from cdpr_sim.core import (
@@ -376,17 +376,8 @@ class WinchSim(ABC):
     def state(self) -> PlatformState:
         """The current state (chord lengths; tensions at the platform end, mean over the last step)."""
         g = self._read()
-        return PlatformState(
-            step=self.step_count,
-            t=self.t,
-            position=g.position,
-            quaternion=_readonly(matrix_to_quat(g.rotation)),
-            rotation=g.rotation,
-            twist=g.twist,
-            cable_lengths=g.lengths,
-            cable_rates=g.rates,
-            tensions=self._tensions,
-        )
+        return PlatformState.of(self.step_count, self.t, g.position, g.rotation, g.twist, g.lengths, g.rates,
+                                self._tensions)
 
     def encoder_lengths(self) -> Array:
         """(m,) the unstretched lengths the winches have paid out, r θ (what drum encoders measure)."""
