@@ -6,7 +6,6 @@ the field, e.g. ``robots/bad.yaml: platform.mass: must be > 0 (got -1.0)``.
 
 from __future__ import annotations
 
-import math
 from importlib import resources
 from pathlib import Path
 from typing import Any, TypeVar
@@ -83,14 +82,3 @@ def parse_model(model: type[M], data: dict[str, Any], path: Path | str) -> M:
         return model.model_validate(data)
     except ValidationError as exc:
         raise InputError(describe_validation_error(path, exc)) from None
-
-
-def check_finite(values: Any, field: str) -> None:
-    """Raise ValueError naming ``field`` if any number in a (nested) list is NaN or infinite."""
-    stack = [values]
-    while stack:
-        v = stack.pop()
-        if isinstance(v, (list, tuple)):
-            stack.extend(v)
-        elif isinstance(v, float) and not math.isfinite(v):
-            raise ValueError(f"{field} must be finite (got {v})")
