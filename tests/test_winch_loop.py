@@ -41,19 +41,16 @@ def test_sensors_are_published_after_every_state(session_id: str) -> None:
     keys = Keys(session_id)
     sensors: dict[int, Sensors] = {}
     states: dict[int, State] = {}
-    order: list[str] = []
     try:
         time.sleep(1.0)
         with zenoh.open(zenoh_config("client", connect=[endpoint])) as z:
             def on_sensors(sample: zenoh.Sample) -> None:
                 msg = Sensors.decode(sample.payload.to_bytes(), cables=8)
                 sensors.setdefault(msg.step, msg)
-                order.append(f"sensors {msg.step}")
 
             def on_state(sample: zenoh.Sample) -> None:
                 msg = State.decode(sample.payload.to_bytes(), cables=8)
                 states.setdefault(msg.step, msg)
-                order.append(f"state {msg.step}")
 
             subs = [z.declare_subscriber(keys.sensors, on_sensors),
                     z.declare_subscriber(keys.state, on_state)]
@@ -79,7 +76,7 @@ def test_sensors_are_published_after_every_state(session_id: str) -> None:
     assert ctrl.returncode == 0, ctrl.stderr
     assert last_json_line(out)["exit_ok"] is True, err
     assert sorted(sensors) == list(range(301)) == sorted(states)
-    assert order.index("state 150") < order.index("sensors 150")  # the state first, then its reading
+    # (no assertion on the arrival order of two different keys: Zenoh does not order them at a receiver)
     for k in range(301):
         s, r = states[k], sensors[k]
         assert r.t == s.t
