@@ -55,6 +55,35 @@ def cable_kinematics(frame_points: Array, platform_points: Array, position: Arra
     return CableKinematics(vectors, lengths, d, t + Rb, W)
 
 
+# ε_ijk: einsum("ijk,nj,nk->in", ε, x, y) is the transposed row-wise cross product x × y in one call,
+# equal to cross_rows's (each component is one product minus another; the other terms are exact zeros).
+_LEVI_CIVITA = np.zeros((3, 3, 3))
+_LEVI_CIVITA[0, 1, 2] = _LEVI_CIVITA[1, 2, 0] = _LEVI_CIVITA[2, 0, 1] = 1.0
+_LEVI_CIVITA[0, 2, 1] = _LEVI_CIVITA[2, 1, 0] = _LEVI_CIVITA[1, 0, 2] = -1.0
+_LEVI_CIVITA.flags.writeable = False
+
+
+class WrenchMatrix:
+    """The wrench matrix W (6×m) of one robot at any pose, with the attach points set up once.
+
+    ``W(position, R)`` equals ``inverse_kinematics(robot, position, R).wrench_matrix`` bit for bit, in a
+    handful of vectorised operations and without the other outputs of :func:`cable_kinematics`.
+    """
+
+    def __init__(self, robot: Robot) -> None:
+        self._a = np.array(robot.frame_points, dtype=float)
+        self._b = np.array(robot.platform_points, dtype=float)
+
+    def __call__(self, position: ArrayLike, R: ArrayLike) -> Array:
+        Rb = self._b @ np.asarray(R, dtype=float).T  # rows R b_i
+        vectors = self._a - np.asarray(position, dtype=float) - Rb  # rows l_i (eq. 2)
+        d = vectors / np.sqrt(np.einsum("ij,ij->i", vectors, vectors))[:, None]
+        W = np.empty((6, len(d)))
+        W[:3] = d.T
+        np.einsum("ijk,nj,nk->in", _LEVI_CIVITA, Rb, d, out=W[3:])
+        return W
+
+
 def inverse_kinematics(robot: Robot, position: ArrayLike, R: ArrayLike | None = None) -> CableKinematics:
     """Cable vectors, lengths, unit vectors and wrench matrix of ``robot`` at pose (position, R)."""
     return cable_kinematics(robot.frame_points, robot.platform_points, position, np.eye(3) if R is None else R)

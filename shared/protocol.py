@@ -146,8 +146,20 @@ def _float(msg: dict[Any, Any], name: str) -> float:
     return value
 
 
+_FLOAT = frozenset({float})
+
+
 def _vector(msg: dict[Any, Any], name: str, length: int | None) -> tuple[float, ...]:
     value = _field(msg, name)
+    # Fast path for what every well-behaved sender sends: a list of finite floats (a NaN or an
+    # infinity makes the sum non-finite; so may an overflow, which the full check below then clears).
+    if (
+        type(value) is list
+        and (length is None or len(value) == length)
+        and _FLOAT.issuperset(map(type, value))
+        and math.isfinite(sum(value))
+    ):
+        return tuple(value)
     if not isinstance(value, (list, tuple)):
         raise ProtocolError(f"{name}: expected an array of numbers, got {type(value).__name__}")
     if length is not None and len(value) != length:
@@ -182,7 +194,7 @@ def pack(msg: dict[str, Any]) -> bytes:
 
 
 def _floats(values: Sequence[float]) -> list[float]:
-    return [float(x) for x in values]
+    return list(map(float, values))
 
 
 # --------------------------------------------------------------------------------------------------

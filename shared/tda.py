@@ -54,12 +54,13 @@ import warnings
 from abc import ABC, abstractmethod
 from dataclasses import dataclass
 from types import MappingProxyType
-from typing import Any, ClassVar, Literal, get_args
+from typing import Any, ClassVar, Literal, cast, get_args
 
 import numpy as np
 import qpsolvers
 import scipy.sparse as spa
 from numpy.typing import ArrayLike
+from scipy.linalg import lapack
 from scipy.optimize import lsq_linear
 
 from cdpr.rotation import Array
@@ -75,6 +76,7 @@ FEASIBLE_STATUSES: frozenset[str] = frozenset({"optimal", "suboptimal", "rate_re
 _OSQP_SETTINGS: MappingProxyType[str, Any] = MappingProxyType(
     {"eps_abs": 1e-9, "eps_rel": 1e-9, "polish": True, "max_iter": 20000, "polish_refine_iter": 5}
 )
+_EPS = float(np.finfo(float).eps)
 _SOLVER_ERRORS = (qpsolvers.QPError, ValueError, ArithmeticError, np.linalg.LinAlgError)
 
 
@@ -89,16 +91,23 @@ class TdaResult:
     method: str  # registry name
 
 
-@dataclass(frozen=True)
 class _Problem:
-    W: Array  # (k, m)
-    w: Array  # (k,)
-    lb: Array  # (m,)
-    ub: Array  # (m,)
-    tol: float  # residual below which W f = w counts as met
+    """One distribution problem: W f = w within [lb, ub]. ``bound_scale`` and ``pinned`` derive from the
+    bounds (given when the caller already has them)."""
+
+    __slots__ = ("W", "any_pinned", "bound_scale", "lb", "pinned", "tol", "ub", "w")
+
+    def __init__(self, W: Array, w: Array, lb: Array, ub: Array, tol: float,
+                 bound_scale: float | None = None, pinned: Array | None = None) -> None:
+        self.W, self.w, self.lb, self.ub = W, w, lb, ub
+        self.tol = tol  # residual below which W f = w counts as met
+        self.bound_scale = _bound_scale(lb, ub) if bound_scale is None else bound_scale
+        self.pinned = lb >= ub if pinned is None else pinned
+        self.any_pinned = bool(self.pinned.any()) if pinned is None else any(pinned.tolist())
 
     def residual(self, f: Array) -> float:
-        return float(np.linalg.norm(self.W @ f - self.w))
+        r = self.W @ f - self.w
+        return math.sqrt(float(r @ r))  # what np.linalg.norm computes for a vector, without its overhead
 
 
 def _bound_scale(lb: Array, ub: Array) -> float:
@@ -138,63 +147,117 @@ def nearest_admissible(W: Array, w: Array, lb: Array, ub: Array) -> Array:
     return np.clip(f, lb, ub)
 
 
+def _gram_factor(A: Array) -> Array | None:
+    """The Cholesky factor (lower) of A Aᵀ for a wide A (k×n, k ≤ n), or None when A Aᵀ is singular or
+    badly conditioned (cond(A Aᵀ) = cond(A)² above ~1e10). Straight through LAPACK: several times
+    faster than numpy's solvers, with their checks, for k ≤ 6."""
+    L, info = lapack.dpotrf(A @ A.T, lower=1, clean=0)
+    if info != 0:  # not positive definite
+        return None
+    d = L.diagonal().tolist()
+    return L if min(d) > 1e-5 * max(d) else None
+
+
 def _min_norm(A: Array, b: Array) -> Array:
     """A⁺ b, the least-norm (least-squares) solution of A x = b.
 
-    Through the normal equations of the smaller Gram matrix (a k×k solve, k ≤ 6: several times faster
-    than an SVD for these sizes); falls back to the SVD when the Gram matrix is singular or badly
-    conditioned, so rank-deficient systems get the true pseudo-inverse answer.
+    Through the normal equations of the smaller Gram matrix (a Cholesky factorisation and solve of a
+    k×k system, k ≤ 6: several times faster than an SVD for these sizes); falls back to the SVD when
+    the Gram matrix is singular or badly conditioned, so rank-deficient systems get the true
+    pseudo-inverse answer.
     """
     r, c = A.shape
-    G = A @ A.T if r <= c else A.T @ A
-    try:
-        d = np.diag(np.linalg.cholesky(G))  # raises unless G is positive definite
-        if d.min() > 1e-5 * d.max():  # cond(G) = cond(A)² stays below ~1e10
-            return A.T @ np.linalg.solve(G, b) if r <= c else np.linalg.solve(G, A.T @ b)
-    except np.linalg.LinAlgError:
-        pass
+    if r <= c:
+        L = _gram_factor(A)
+        if L is not None:
+            y, info = lapack.dpotrs(L, b, lower=1)
+            if info == 0:
+                return A.T @ y
+    else:
+        L = _gram_factor(A.T)
+        if L is not None:
+            y, info = lapack.dpotrs(L, A.T @ b, lower=1)
+            if info == 0:
+                return y
     return np.linalg.lstsq(A, b, rcond=None)[0]
 
 
-def _refine(alpha: float, q: Array, prob: _Problem, w: Array, f0: Array) -> Array | None:
+def _refine(alpha: float, q: Array | None, prob: _Problem, w: Array, f0: Array) -> Array | None:
     """The exact minimiser of ½α‖f‖² + qᵀf s.t. W f = w, lb ≤ f ≤ ub, from the active set of f0.
 
     Solves the equality-constrained problem with the active bounds fixed, then checks the KKT
     conditions (free tensions within bounds, multiplier signs); a violated condition moves one cable
     in or out of the active set. None if no KKT point is reached within a few corrections.
+    ``q=None`` means q = 0 (the min-norm problem).
     """
     W, lb, ub = prob.W, prob.lb, prob.ub
     m = lb.size
-    scale = _bound_scale(lb, ub)
-    pinned = lb >= ub
-    at_lo = pinned | (f0 <= lb + 1e-6 * scale)
-    at_hi = ~at_lo & (f0 >= ub - 1e-6 * scale)
-    c = -q / alpha  # unconstrained minimiser
+    scale = prob.bound_scale
+    pinned = prob.pinned
+    lo_band, hi_band = lb + 1e-6 * scale, ub - 1e-6 * scale
+    # (small reductions through Python lists: several times cheaper than numpy's for m ≲ 30)
+    all_free = (
+        not prob.any_pinned and min((f0 - lo_band).tolist()) > 0.0 and min((hi_band - f0).tolist()) > 0.0
+    )
+    if all_free:
+        at_lo = np.zeros(m, dtype=bool)  # f0 strictly inside the bounds (the usual case): no active bound
+        at_hi = at_lo.copy()
+    else:
+        at_lo = pinned | (f0 <= lo_band)
+        at_hi = ~at_lo & (f0 >= hi_band)
     btol = 1e-12 * scale
-    gtol = 1e-9 * (alpha * scale + float(np.abs(q).max(initial=0.0)))
+    if q is None:
+        c = None
+        gtol = 1e-9 * alpha * scale
+    else:
+        c = -q / alpha  # unconstrained minimiser
+        gtol = 1e-9 * (alpha * scale + float(np.abs(q).max(initial=0.0)))
     for _ in range(m + 2):
-        free = ~(at_lo | at_hi)
-        f = np.where(at_lo, lb, ub)
-        Wf = W[:, free]
-        if free.any():
-            f[free] = c[free] + _min_norm(Wf, w - W[:, ~free] @ f[~free] - Wf @ c[free])
-        if np.linalg.norm(W @ f - w) > prob.tol:
-            return None  # this active set cannot produce the wrench
-        if not free.any():
-            return None  # multipliers undetermined; leave it to the caller's fallback
-        grad = alpha * f + q
-        lam = _min_norm(Wf.T, grad[free])
-        mu = grad - W.T @ lam  # ≥ 0 at lower bounds, ≤ 0 at upper bounds, 0 on free cables
-        viol = np.where(free, np.maximum(lb - f, f - ub), -np.inf)
-        wrong = np.where(at_lo & ~pinned, -mu, np.where(at_hi, mu, -np.inf))
-        if viol.max() > btol:
+        if all_free or not (bound := at_lo | at_hi).any():
+            # Every cable free (the usual case): no multiplier to check, only the bounds.
+            f = _min_norm(W, w) if c is None else c + _min_norm(W, w - W @ c)
+            r = W @ f - w
+            if math.sqrt(float(r @ r)) > prob.tol:
+                return None
+            if min((f - lb).tolist()) >= -btol and min((ub - f).tolist()) >= -btol:
+                return np.clip(f, lb, ub)
+            viol = np.maximum(lb - f, f - ub)
             i = int(np.argmax(viol))
             if f[i] < lb[i]:
                 at_lo[i] = True
             else:
                 at_hi[i] = True
-        elif wrong.max() > gtol:
-            i = int(np.argmax(wrong))
+            all_free = False
+            continue
+        free = ~bound
+        f = np.where(at_lo, lb, ub)
+        if not free.any():
+            return None  # the wrench is out of this active set's reach, or its multipliers are undetermined
+        Wf = W[:, free]
+        rhs = w - W[:, bound] @ f[bound]
+        if c is not None:
+            rhs = rhs - Wf @ c[free]
+        # With at least as many free cables as rows, the primal (least-norm tensions) and the dual
+        # (multipliers) solves share the Gram matrix Wf Wfᵀ: factorised once.
+        L = _gram_factor(Wf) if Wf.shape[0] <= Wf.shape[1] else None
+        x = _min_norm(Wf, rhs) if L is None else Wf.T @ lapack.dpotrs(L, rhs, lower=1)[0]
+        f[free] = x if c is None else c[free] + x
+        r = W @ f - w
+        if math.sqrt(float(r @ r)) > prob.tol:
+            return None  # this active set cannot produce the wrench
+        grad = alpha * f if q is None else alpha * f + q
+        lam = _min_norm(Wf.T, grad[free]) if L is None else lapack.dpotrs(L, Wf @ grad[free], lower=1)[0]
+        mu = grad - W.T @ lam  # ≥ 0 at lower bounds, ≤ 0 at upper bounds, 0 on free cables
+        viol = np.where(free, np.maximum(lb - f, f - ub), -np.inf).tolist()
+        wrong = np.where(at_lo & ~pinned, -mu, np.where(at_hi, mu, -np.inf)).tolist()
+        if max(viol) > btol:
+            i = viol.index(max(viol))
+            if f[i] < lb[i]:
+                at_lo[i] = True
+            else:
+                at_hi[i] = True
+        elif max(wrong) > gtol:
+            i = wrong.index(max(wrong))
             at_lo[i] = at_hi[i] = False
         else:
             return np.clip(f, lb, ub)
@@ -213,6 +276,7 @@ class TensionDistributor(ABC):
         self.atol = float(atol)
         self._previous: Array | None = None  # tensions returned by the last call
         self._last_feasible: Array | None = None
+        self._bounds: dict[tuple[int, float, float], tuple[Array, Array, float, Array]] = {}
 
     def reset(self) -> None:
         """Forget the previous tensions (warm start, continuity reference, last feasible answer)."""
@@ -221,16 +285,26 @@ class TensionDistributor(ABC):
 
     def solve(self, W: ArrayLike, w: ArrayLike, tmin: ArrayLike, tmax: ArrayLike) -> TdaResult:
         """Tensions for the wrench ``w`` (k,) through ``W`` (k×m) within [tmin, tmax] (scalars or (m,))."""
-        W, w, lb, ub = _as_arrays(W, w, tmin, tmax)
-        if not (np.all(np.isfinite(W)) and np.all(np.isfinite(w))):
+        bounds = self._scalar_bounds(W, w, tmin, tmax)
+        if bounds is None:
+            W, w, lb, ub = _as_arrays(W, w, tmin, tmax)
+            bscale, pinned = _bound_scale(lb, ub), lb >= ub
+        else:  # the loop's case: float arrays of the right shapes, scalar bounds
+            lb, ub, bscale, pinned = bounds
+        W = cast(Array, W)
+        w = cast(Array, w)
+        w_max, row_max = float(np.abs(w).max()), float(np.abs(W).sum(axis=1).max())
+        # Both are finite when W and w are (a NaN or an infinity propagates); only an overflow of
+        # the row sums of finite numbers needs the element-wise check.
+        if not math.isfinite(w_max + row_max) and not (np.all(np.isfinite(W)) and np.all(np.isfinite(w))):
             return self._finish(self._keep(lb, ub), math.inf, "invalid_input")
-        scale = float(np.abs(w).max()) + float(np.abs(W).sum(axis=1).max()) * _bound_scale(lb, ub)
-        prob = _Problem(W, w, lb, ub, tol=max(self.atol, 64.0 * np.finfo(float).eps * scale))
+        scale = w_max + row_max * bscale
+        prob = _Problem(W, w, lb, ub, max(self.atol, 64.0 * _EPS * scale), bscale, pinned)
         try:
             f, status = self._solve(prob)
         except _SOLVER_ERRORS:
             f, status = None, "solver_failed"
-        if f is None or not np.all(np.isfinite(f)):
+        if f is None or (not math.isfinite(float(f.sum())) and not np.all(np.isfinite(f))):
             kept = self._keep(lb, ub)
             return self._finish(kept, prob.residual(kept), "solver_failed")
         f = np.clip(f, lb, ub)
@@ -238,6 +312,31 @@ class TensionDistributor(ABC):
         if status in FEASIBLE_STATUSES and residual > prob.tol:
             status = "solver_failed"  # defensive: never report a wrench that is not met
         return self._finish(f, residual, status)
+
+    def _scalar_bounds(
+        self, W: ArrayLike, w: ArrayLike, tmin: ArrayLike, tmax: ArrayLike
+    ) -> tuple[Array, Array, float, Array] | None:
+        """(lb, ub, bound scale, pinned) for float64 arrays W (k×m), w (k,) and float bounds, built once
+        per (m, tmin, tmax) and kept; None for any other input (then :func:`_as_arrays` checks it all)."""
+        if type(W) is not np.ndarray or type(w) is not np.ndarray:
+            return None
+        if type(tmin) is not float or type(tmax) is not float:
+            return None
+        if W.dtype != np.float64 or w.dtype != np.float64 or W.ndim != 2 or w.shape != (W.shape[0],):
+            return None
+        key = (W.shape[1], tmin, tmax)
+        cached = self._bounds.get(key)
+        if cached is None:
+            if key[0] == 0 or not (math.isfinite(tmin) and math.isfinite(tmax)) or tmin > tmax:
+                return None  # let _as_arrays raise the usual error
+            if len(self._bounds) >= 8:
+                self._bounds.clear()  # bounds that change all the time: keep the cache small
+            lb, ub = np.full(key[0], tmin), np.full(key[0], tmax)
+            lb.flags.writeable = ub.flags.writeable = False
+            pinned = lb >= ub
+            pinned.flags.writeable = False
+            cached = self._bounds[key] = (lb, ub, _bound_scale(lb, ub), pinned)
+        return cached
 
     def _keep(self, lb: Array, ub: Array) -> Array:
         """The last feasible tensions, clipped to the current bounds, or tmin."""
@@ -337,17 +436,19 @@ class _QpDistributor(TensionDistributor):
         self.calls = 0
 
     @abstractmethod
-    def _objective(self, prob: _Problem) -> tuple[float, Array]:
-        """(α, q) of the cost ½α‖f‖² + qᵀf."""
+    def _objective(self, prob: _Problem) -> tuple[float, Array | None]:
+        """(α, q) of the cost ½α‖f‖² + qᵀf; q = None stands for q = 0."""
 
     def _rate_bounds(self, prob: _Problem) -> tuple[Array, Array] | None:
         """Tighter bounds to try first (continuity's max_rate), or None."""
         return None
 
-    def _qp(self, alpha: float, q: Array, prob: _Problem, lb: Array, ub: Array) -> tuple[Array, str] | None:
+    def _qp(
+        self, alpha: float, q: Array | None, prob: _Problem, lb: Array, ub: Array
+    ) -> tuple[Array, str] | None:
         """Solve with the QP solver, then make it exact; None if no admissible answer comes out."""
         sub = _Problem(prob.W, prob.w, lb, ub, prob.tol)
-        s = _bound_scale(lb, ub)  # solve for f / s so the solver's absolute tolerances are relative
+        s = sub.bound_scale  # solve for f / s so the solver's absolute tolerances are relative
         m = lb.size
         if self.solver in qpsolvers.sparse_solvers:
             P: Any = spa.identity(m, format="csc") * alpha
@@ -358,7 +459,8 @@ class _QpDistributor(TensionDistributor):
         initvals = None if prev is None else np.clip(prev, lb, ub) / s
         settings = dict(_OSQP_SETTINGS) if self.solver == "osqp" and self.exact else {}
         settings.update(self.solver_settings)
-        problem = qpsolvers.Problem(P, q / s, A=A, b=prob.w / s, lb=lb / s, ub=ub / s)
+        q_s = np.zeros(m) if q is None else q / s
+        problem = qpsolvers.Problem(P, q_s, A=A, b=prob.w / s, lb=lb / s, ub=ub / s)
         with warnings.catch_warnings():
             warnings.simplefilter("ignore")  # failures are reported through the status instead
             try:
@@ -421,8 +523,8 @@ class MinNormQp(_QpDistributor):
 
     name: ClassVar[str] = "qp"
 
-    def _objective(self, prob: _Problem) -> tuple[float, Array]:
-        return 1.0, np.zeros(prob.lb.size)
+    def _objective(self, prob: _Problem) -> tuple[float, Array | None]:
+        return 1.0, None
 
 
 class ContinuityQp(_QpDistributor):
@@ -454,10 +556,10 @@ class ContinuityQp(_QpDistributor):
         self.max_rate = None if max_rate is None else float(max_rate)
         self.reference = reference
 
-    def _objective(self, prob: _Problem) -> tuple[float, Array]:
+    def _objective(self, prob: _Problem) -> tuple[float, Array | None]:
         prev = self._previous_for(prob.lb.size)
         if prev is None:
-            return 1.0, np.zeros(prob.lb.size)  # first call: the qp problem
+            return 1.0, None  # first call: the qp problem
         ref = 0.5 * (prob.lb + prob.ub) if self.reference == "mid-range" else 0.0
         return 1.0 + self.epsilon, -(prev + self.epsilon * ref)
 

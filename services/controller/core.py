@@ -17,13 +17,13 @@ there the sag's compliance, ∝ w²l³/T³, multiplies every change of tension i
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 from numpy.typing import ArrayLike
 
-from cdpr.control import Gains, Variant, controlled_rows, feedback_linearisation
-from cdpr.kinematics import inverse_kinematics
+from cdpr.control import FeedbackLaw, Gains, Variant, controlled_rows
+from cdpr.kinematics import WrenchMatrix, inverse_kinematics
 from cdpr.protocol import Setpoint, State
 from cdpr.robot import Robot
 from cdpr.rotation import Array, quat_to_matrix
@@ -49,6 +49,11 @@ class ControllerCore:
     tda: TensionDistributor
     output: str = "tensions"  # or "lengths"
     axial_stiffness: float | None = None  # EA, N, of the cables: needed for length output
+    _law: FeedbackLaw = field(init=False, repr=False)
+    _wrench_matrix: WrenchMatrix = field(init=False, repr=False)
+    _rows: list[int] | None = field(init=False, repr=False)
+    _tmin: float = field(init=False, repr=False)
+    _tmax: float = field(init=False, repr=False)
 
     def __post_init__(self) -> None:
         if self.output not in ("tensions", "lengths"):
@@ -56,6 +61,12 @@ class ControllerCore:
         EA = self.axial_stiffness
         if self.output == "lengths" and not (EA is not None and 0.0 < EA < np.inf):
             raise ValueError(f"length output needs the cables' axial_stiffness EA > 0 (got {EA})")
+        # Everything that does not change from step to step is set up here, once.
+        self._law = FeedbackLaw(self.robot, self.gains, self.variant)
+        self._wrench_matrix = WrenchMatrix(self.robot)
+        rows = self.rows
+        self._rows = None if rows == [0, 1, 2, 3, 4, 5] else rows
+        self._tmin, self._tmax = float(self.robot.tmin), float(self.robot.tmax)
 
     @classmethod
     def from_scenario(cls, scenario: Scenario) -> ControllerCore:
@@ -81,25 +92,14 @@ class ControllerCore:
         return list(controlled_rows(self.robot, self.variant))
 
     def step(self, state: State, setpoint: Setpoint) -> TdaResult:
-        position = np.asarray(state.pose[:3])
-        R = quat_to_matrix(state.pose[3:])
-        wrench = feedback_linearisation(
-            self.robot,
-            position,
-            R,
-            state.twist,
-            setpoint.pose[:3],
-            quat_to_matrix(setpoint.pose[3:]),
-            setpoint.twist,
-            setpoint.accel,
-            self.gains,
-            self.variant,
-        )
-        W6 = inverse_kinematics(self.robot, position, R).wrench_matrix
-        W = W6[self.rows]
+        # Eq. 6–7 by cdpr.control.FeedbackLaw and W by cdpr.kinematics.WrenchMatrix, both set up once:
+        # the same numbers as feedback_linearisation and inverse_kinematics, without their per-call work.
+        position, R, wrench = self._law(state.pose, state.twist, setpoint.pose, setpoint.twist, setpoint.accel)
+        W6 = self._wrench_matrix(position, R)
+        W = W6 if self._rows is None else W6[self._rows]
         if self.robot.cable_damping > 0.0:
             # The cables' viscous damping (the robot file's, applied by the sim along each cable as
             # c·l̇ on top of the tension) is a known external wrench of eq. 5: compensate it like gravity.
             rates = -(W6.T @ np.asarray(state.twist))  # l̇ = J v, J = −Wᵀ
             wrench = wrench - W @ (self.robot.cable_damping * rates)
-        return self.tda.solve(W, wrench, self.robot.tmin, self.robot.tmax)
+        return self.tda.solve(W, wrench, self._tmin, self._tmax)

@@ -1,0 +1,203 @@
+"""The loop's fast paths give what the reference code gives: the controller's set-up-once feedback law
+and wrench matrix, the LAPACK tension distribution, the quaternion and clamping shortcuts, the
+protocol's fast decoding, and the service dispatcher that runs handlers on Zenoh's thread."""
+
+from __future__ import annotations
+
+import threading
+import time
+
+import msgpack
+import numpy as np
+import pytest
+import zenoh
+from scipy.spatial.transform import Rotation
+
+from cdpr.control import FeedbackLaw, Gains, controlled_rows, feedback_linearisation
+from cdpr.kinematics import WrenchMatrix, inverse_kinematics
+from cdpr.protocol import Command, ProtocolError, State
+from cdpr.robot import load_robot, shipped_robots
+from cdpr.rotation import matrix_to_quat, quat_to_matrix
+from cdpr.service import Node, _Dispatcher
+from cdpr.tda import make_tda
+from cdpr.transport import Event, Inbox, zenoh_config
+from cdpr_sim.core import clamp_tensions
+from conftest import free_port
+
+
+def _random_pose(rng: np.random.Generator) -> tuple[float, ...]:
+    q = rng.standard_normal(4)
+    return (*rng.uniform(-1.0, 1.0, 3), *(q / np.linalg.norm(q)))
+
+
+@pytest.mark.parametrize("variant", ["6dof", "3dof"])
+@pytest.mark.parametrize("name", shipped_robots())
+def test_feedback_law_is_feedback_linearisation(name: str, variant: str) -> None:
+    robot = load_robot(name)
+    rng = np.random.default_rng(7)
+    gains = Gains.of(rng.uniform(0.0, 2000.0, 6), rng.uniform(0.0, 2000.0, 6))
+    law = FeedbackLaw(robot, gains, variant)  # type: ignore[arg-type]
+    for i in range(200):
+        pose = _random_pose(rng)
+        if i % 4 == 0:
+            pose_d = (*pose[:3], *(-np.array(pose[3:])))  # the same rotation: no orientation error
+        elif i % 4 == 1:  # a rotation by almost π away from the measured one
+            turn = Rotation.from_rotvec([0.0, 0.0, np.pi - 1e-3])
+            q = (turn * Rotation.from_quat(pose[3:])).as_quat()
+            pose_d = (*rng.uniform(-1.0, 1.0, 3), *q)
+        else:
+            pose_d = _random_pose(rng)
+        twist, twist_d, accel_d = (tuple(rng.standard_normal(6)) for _ in range(3))
+        position, R, wrench = law(pose, twist, pose_d, twist_d, accel_d)
+        ref = feedback_linearisation(robot, pose[:3], quat_to_matrix(pose[3:]), twist, pose_d[:3],
+                                     quat_to_matrix(pose_d[3:]), twist_d, accel_d, gains, variant)  # type: ignore[arg-type]
+        assert wrench.shape == ref.shape == (len(controlled_rows(robot, variant)),)  # type: ignore[arg-type]
+        np.testing.assert_allclose(wrench, ref, rtol=1e-11, atol=1e-9 * (1.0 + np.abs(ref).max()))
+        np.testing.assert_allclose(R, quat_to_matrix(pose[3:]), rtol=0, atol=1e-15)
+        assert position.tolist() == list(pose[:3])
+
+
+@pytest.mark.parametrize("name", shipped_robots())
+def test_wrench_matrix_is_bit_identical_to_inverse_kinematics(name: str) -> None:
+    robot = load_robot(name)
+    rng = np.random.default_rng(3)
+    W = WrenchMatrix(robot)
+    for _ in range(50):
+        p = robot.home_position + rng.uniform(-0.3, 0.3, 3)
+        R = Rotation.from_rotvec(rng.uniform(-0.3, 0.3, 3)).as_matrix()
+        assert np.array_equal(W(p, R), inverse_kinematics(robot, p, R).wrench_matrix)
+
+
+def test_matrix_to_quat_against_scipy_on_every_branch() -> None:
+    rng = np.random.default_rng(11)
+    rotations = [Rotation.random(random_state=rng) for _ in range(300)]
+    # the four branches of Shepperd's method: trace > 0, and the largest diagonal term x, y or z
+    rotations += [Rotation.from_rotvec(np.pi * axis) for axis in np.eye(3)]
+    rotations += [Rotation.from_rotvec(0.999 * np.pi * axis) for axis in np.eye(3)]
+    for rot in rotations:
+        got = matrix_to_quat(rot.as_matrix())
+        want = rot.as_quat()  # [x, y, z, w]
+        want = want if want[3] > 0 or (want[3] == 0 and got @ want > 0) else -want
+        np.testing.assert_allclose(got, want, rtol=0, atol=1e-14)
+        assert got[3] >= 0.0 and abs(np.linalg.norm(got) - 1.0) < 1e-15
+
+
+def test_clamp_tensions_fast_path_matches_the_formula() -> None:
+    rng = np.random.default_rng(5)
+    for _ in range(500):
+        f = rng.uniform(-50.0, 150.0, 8) if rng.random() < 0.5 else rng.uniform(0.0, 100.0, 8)
+        applied, low, high = clamp_tensions(f, 100.0)
+        assert np.array_equal(applied, np.minimum(np.maximum(f, 0.0), 100.0))
+        assert (low, high) == (int((f < 0).sum()), int((f > 100.0).sum()))
+        assert applied is not f
+    inf = np.array([1.0, np.inf, -np.inf])
+    assert clamp_tensions(inf, 10.0)[0].tolist() == [1.0, 10.0, 0.0]
+    with pytest.raises(ValueError, match="NaN"):
+        clamp_tensions(np.array([1.0, np.nan]), 10.0)
+    with pytest.raises(ValueError, match="NaN"):  # inf + (−inf) = NaN in the sum, and a real NaN too
+        clamp_tensions(np.array([np.inf, -np.inf, np.nan]), 10.0)
+
+
+def test_vector_fast_path_keeps_the_checks() -> None:
+    def command(tensions: object) -> bytes:
+        return msgpack.packb({"v": 1, "step": 1, "t": 0.001, "tensions": tensions})
+
+    assert Command.decode(command([1.5, 2.5])).tensions == (1.5, 2.5)
+    assert Command.decode(command([1, 2.5])).tensions == (1.0, 2.5)  # integers are numbers too
+    assert Command.decode(command([1e308, 1e308])).tensions == (1e308, 1e308)  # the sum overflows
+    assert Command.decode(command([])).tensions == ()
+    for bad, message in [
+        ([1.0, float("inf")], r"^tensions\[1\]: must be finite"),
+        ([float("-inf"), float("inf")], r"^tensions\[0\]: must be finite"),
+        ([True, 1.0], r"^tensions\[0\]: expected a number, got bool"),
+        ([1.0, "2"], r"^tensions\[1\]: expected a number, got str"),
+    ]:
+        with pytest.raises(ProtocolError, match=message):
+            Command.decode(command(bad))
+    with pytest.raises(ProtocolError, match=r"^tensions: expected 3 numbers, got 2"):
+        Command.decode(command([1.0, 2.0]), cables=3)
+    state = State(2, 0.002, (0.0,) * 7, (0.0,) * 6, (1.0,) * 4, (2.0,) * 4)
+    assert State.decode(state.encode(), 4) == state
+
+
+def test_tda_scalar_bounds_fast_path_equals_array_bounds() -> None:
+    robot = load_robot("caroca").with_mass(15.0)
+    rng = np.random.default_rng(2)
+    fast, slow = make_tda("qp"), make_tda("qp")
+    for _ in range(100):
+        p = robot.home_position + rng.uniform(-0.2, 0.2, 3)
+        W = inverse_kinematics(robot, p, np.eye(3)).wrench_matrix
+        w = np.r_[0.0, 0.0, 15.0 * 9.81, 0.0, 0.0, 0.0] + rng.uniform(-5.0, 5.0, 6)
+        a = fast.solve(W, w, 1.0, 6500.0)
+        b = slow.solve(W, w, np.full(8, 1.0), np.full(8, 6500.0))
+        assert np.array_equal(a.tensions, b.tensions) and a.status == b.status == "optimal"
+    bad = fast.solve(np.full((6, 8), np.nan), np.zeros(6), 1.0, 6500.0)
+    assert bad.status == "invalid_input" and not bad.feasible
+    with pytest.raises(ValueError, match="tmin must not exceed tmax"):
+        fast.solve(W, w, 10.0, 1.0)
+    with pytest.raises(ValueError, match="finite"):
+        fast.solve(W, w, 1.0, float("inf"))
+
+
+class _Recorder(Node):
+    name = "recorder"
+    direct = True
+
+    def __init__(self) -> None:
+        super().__init__(keys=None)  # type: ignore[arg-type]
+        self.seen: list[str] = []
+        self.idles = 0
+        self.deliver: _Dispatcher | None = None
+
+    def handle(self, event: Event) -> None:
+        self.seen.append(event.key)
+        if event.key == "first" and self.deliver is not None:
+            self.deliver(Event("x", b"", "nested", 0.0))  # e.g. our own publication, delivered at once
+            self.seen.append("after nested")
+        if event.key == "boom":
+            raise RuntimeError("boom")
+
+    def idle(self, now: float) -> None:
+        self.idles += 1
+
+
+def test_dispatcher_defers_reentrant_events_and_keeps_the_first_error() -> None:
+    node, wake = _Recorder(), threading.Event()
+    dispatch = _Dispatcher(node, node.handle, wake)
+    node.deliver = dispatch
+    dispatch(Event("x", b"", "first", 0.0))
+    assert node.seen == ["first", "after nested", "nested"]  # not nested inside the first handler
+    assert node.idles == 1 and not wake.is_set()
+    node.done = True
+    dispatch(Event("x", b"", "last", 0.0))
+    assert wake.is_set()  # the main thread must notice the end
+    node.done = False
+    dispatch(Event("x", b"", "boom", 0.0))
+    assert isinstance(dispatch.error, RuntimeError) and dispatch.closed
+    dispatch(Event("x", b"", "ignored", 0.0))
+    assert "ignored" not in node.seen
+
+
+def test_inbox_handler_runs_on_zenohs_thread_message_after_message() -> None:
+    endpoint = f"tcp/127.0.0.1:{free_port()}"
+    threads: list[str] = []
+    got: list[bytes] = []
+    done = threading.Event()
+
+    def handler(event: Event) -> None:
+        threads.append(threading.current_thread().name)
+        got.append(event.payload)
+        if len(got) == 50:
+            done.set()
+
+    with zenoh.open(zenoh_config("peer", listen=[endpoint])) as a, \
+            zenoh.open(zenoh_config("peer", connect=[endpoint])) as b:
+        sub = Inbox(handler).subscribe(a, "test/fast/inbox", "x")
+        time.sleep(0.5)
+        pub = b.declare_publisher("test/fast/inbox")
+        for i in range(50):
+            pub.put(bytes([i]))
+        assert done.wait(10.0)
+        sub.undeclare()
+    assert got == [bytes([i]) for i in range(50)]
+    assert threading.main_thread().name not in threads
