@@ -7,6 +7,7 @@ they read, then handle one event at a time in their own loop.
 
 from __future__ import annotations
 
+import ctypes
 import json
 import os
 import queue
@@ -15,7 +16,7 @@ import signal
 import sys
 import threading
 import time
-from collections.abc import Iterator, Sequence
+from collections.abc import Callable, Iterator, Sequence
 from dataclasses import dataclass
 from types import FrameType
 from typing import Any
@@ -76,8 +77,24 @@ def zenoh_config(
     return conf
 
 
+# Zenoh's thread pools for a cdpr process (unless $ZENOH_RUNTIME says otherwise): one worker thread
+# receives, routes and runs the subscribers' callbacks (rx, and the rarely used acceptor and
+# housekeeping pools, handed over to it), one transmits. Zenoh's default (two rx workers, plus app,
+# acc, net, tx) wakes several threads per message, which on a small machine costs more CPU than the
+# message itself. Transmission keeps its own thread: a callback's put() may wait for it.
+ZENOH_RUNTIME = (
+    "(rx: (handover: app), acc: (handover: app), net: (handover: app), "
+    "app: (worker_threads: 1), tx: (worker_threads: 1))"
+)
+
+
 def open_session(conf: zenoh.Config, what: str) -> zenoh.Session:
-    """Open a Zenoh session, turning a bad endpoint or a port in use into one InputError line."""
+    """Open a Zenoh session, turning a bad endpoint or a port in use into one InputError line.
+
+    The first session of the process fixes Zenoh's thread pools: :data:`ZENOH_RUNTIME`, unless the
+    environment variable of that name is set.
+    """
+    os.environ.setdefault("ZENOH_RUNTIME", ZENOH_RUNTIME)
     try:
         return zenoh.open(conf)
     except Exception as exc:
@@ -108,29 +125,66 @@ class Event:
     received: float  # time.monotonic() at receipt, for statistics only (never for the simulation)
 
 
-class Inbox:
-    """Callbacks from Zenoh threads put events here; the service's single loop takes them out."""
+class _ThreadStatePin(threading.local):
+    """Gives the Zenoh thread that runs a callback a Python thread state for the rest of its life.
 
-    def __init__(self) -> None:
+    Zenoh's receive threads are not Python threads: for every callback, the binding creates a Python
+    thread state and deletes it afterwards, and deleting one frees its frame stack with ``munmap`` —
+    a TLB shootdown on every CPU, per message. One extra ``PyGILState_Ensure`` (never released) keeps
+    the thread state, so the following callbacks reuse it. Called with the GIL held; idempotent.
+    """
+
+    pinned = False
+
+    def __call__(self) -> None:
+        if not self.pinned:
+            ctypes.pythonapi.PyGILState_Ensure()
+            self.pinned = True
+
+
+pin_thread_state = _ThreadStatePin()
+
+
+class Inbox:
+    """Events from Zenoh's subscribers, for a service's single loop.
+
+    By default each event is put on a queue that the service's loop takes out (:meth:`get`,
+    :meth:`drain`). With a ``handler``, Zenoh's receive thread hands each event to it right there (no
+    Python thread in between, the binding's ``indirect=False``) and the queue stays empty (see
+    :func:`cdpr.service.serve`).
+    """
+
+    def __init__(self, handler: Callable[[Event], None] | None = None) -> None:
         self._q: queue.SimpleQueue[Event] = queue.SimpleQueue()
+        self._deliver: Callable[[Event], None] = handler if handler is not None else self._q.put
+        # Queued, the callback runs on a Python thread of the binding's (its "indirect" mode): Zenoh's
+        # receive thread then never waits for this process's GIL — in `cdpr run` that thread is the
+        # session's router, and the launcher's main thread may hold the GIL for a while (a garbage
+        # collection of everything it has gathered). With a handler, the callback runs on Zenoh's
+        # thread itself: nothing between the message and its handler.
+        self._indirect = handler is None
 
     def subscribe(self, session: zenoh.Session, key: str, kind: str) -> zenoh.Subscriber:
-        put = self._q.put
+        deliver, monotonic, pin = self._deliver, time.monotonic, pin_thread_state
 
         def on_sample(sample: zenoh.Sample) -> None:
-            put(Event(kind, sample.payload.to_bytes(), str(sample.key_expr), time.monotonic()))
+            pin()
+            deliver(Event(kind, sample.payload.to_bytes(), str(sample.key_expr), monotonic()))
 
-        return session.declare_subscriber(key, on_sample)
+        return session.declare_subscriber(key, zenoh.handlers.Callback(on_sample, indirect=self._indirect))
 
     def watch_liveliness(self, session: zenoh.Session, key: str) -> zenoh.Subscriber:
         """Liveliness tokens matching ``key``: events ``alive``/``gone``, current ones included."""
-        put = self._q.put
+        deliver = self._deliver
 
         def on_token(sample: zenoh.Sample) -> None:
+            pin_thread_state()
             kind = "alive" if sample.kind == zenoh.SampleKind.PUT else "gone"
-            put(Event(kind, b"", str(sample.key_expr), time.monotonic()))
+            deliver(Event(kind, b"", str(sample.key_expr), time.monotonic()))
 
-        return session.liveliness().declare_subscriber(key, on_token, history=True)
+        return session.liveliness().declare_subscriber(
+            key, zenoh.handlers.Callback(on_token, indirect=self._indirect), history=True
+        )
 
     def get(self, timeout: float | None) -> Event | None:
         try:

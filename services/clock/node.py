@@ -26,6 +26,7 @@ LINGER = 2.0  # seconds the clock keeps announcing "finished" while participants
 
 class ClockNode(Node):
     name = "clock"
+    direct = True  # handled on Zenoh's receive thread: no hand-off between a message and its answer
 
     def __init__(
         self,
@@ -172,7 +173,8 @@ class ClockNode(Node):
 
     def publish_status(self, now: float) -> None:
         assert self._status is not None
-        stats = self.core.stats(self.finished_at if self.finished_at is not None else now)
+        final = self.finished_at is not None
+        stats = self.core.stats(self.finished_at if final else now, exact=final)
         faults = {**self.faults, "clock": dict(self.counters)} if self.counters else dict(self.faults)
         stats["faults"] = {k: v for k, v in faults.items() if v}
         status = Status(

@@ -20,6 +20,7 @@ from cdpr_controller.core import ControllerCore
 
 class ControllerNode(Node):
     name = "controller"
+    direct = True  # handled on Zenoh's receive thread: no hand-off between a message and its answer
 
     def __init__(self, scenario: Scenario, keys: Keys) -> None:
         super().__init__(keys)

@@ -50,6 +50,7 @@ def make_sim(scenario: Scenario) -> PlatformSim:
 
 class SimNode(Node):
     name = "sim"
+    direct = True  # handled on Zenoh's receive thread: no hand-off between a message and its answer
 
     def __init__(self, scenario: Scenario, keys: Keys) -> None:
         super().__init__(keys)

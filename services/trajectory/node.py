@@ -15,6 +15,7 @@ from cdpr_trajectory.core import setpoint_at
 
 class TrajectoryNode(Node):
     name = "trajectory"
+    direct = True  # handled on Zenoh's receive thread: no hand-off between a message and its answer
 
     def __init__(self, scenario: Scenario, keys: Keys) -> None:
         super().__init__(keys)
