@@ -55,14 +55,6 @@ def cable_kinematics(frame_points: Array, platform_points: Array, position: Arra
     return CableKinematics(vectors, lengths, d, t + Rb, W)
 
 
-# ε_ijk: einsum("ijk,nj,nk->in", ε, x, y) is the transposed row-wise cross product x × y in one call,
-# equal to cross_rows's (each component is one product minus another; the other terms are exact zeros).
-_LEVI_CIVITA = np.zeros((3, 3, 3))
-_LEVI_CIVITA[0, 1, 2] = _LEVI_CIVITA[1, 2, 0] = _LEVI_CIVITA[2, 0, 1] = 1.0
-_LEVI_CIVITA[0, 2, 1] = _LEVI_CIVITA[2, 1, 0] = _LEVI_CIVITA[1, 0, 2] = -1.0
-_LEVI_CIVITA.flags.writeable = False
-
-
 class WrenchMatrix:
     """The wrench matrix W (6×m) of one robot at any pose, with the attach points set up once.
 
@@ -80,8 +72,27 @@ class WrenchMatrix:
         d = vectors / np.sqrt(np.einsum("ij,ij->i", vectors, vectors))[:, None]
         W = np.empty((6, len(d)))
         W[:3] = d.T
-        np.einsum("ijk,nj,nk->in", _LEVI_CIVITA, Rb, d, out=W[3:])
+        W[3:] = cross_rows(Rb, d).T
         return W
+
+
+def cable_geometry(
+    frame_points: Array, platform_points: Array, position: Array, R: Array, v: Array, omega: Array
+) -> tuple[Array, Array, Array, Array, Array]:
+    """The cables of a moving platform: ``(arms, lengths, directions, moments, rates)``.
+
+    ``arms`` (m, 3) are R b_i, ``lengths`` (m,) ‖l_i‖, ``directions`` (m, 3) the unit d_i (rows of W's
+    force block), ``moments`` (m, 3) (R b_i) × d_i (rows of W's moment block) and ``rates`` (m,) the
+    length rates l̇ = J v = −(d_i · v + ((R b_i) × d_i) · ω), for the platform at (position, R) moving
+    with linear velocity ``v`` and angular velocity ``omega`` (world frame). What a simulator reads
+    off its body every step; no checks (the lengths must not be zero).
+    """
+    arms = platform_points @ R.T  # rows R b_i
+    vectors = frame_points - position - arms  # rows l_i (eq. 2)
+    lengths = np.sqrt(np.einsum("ij,ij->i", vectors, vectors))
+    d = vectors / lengths[:, None]
+    moments = cross_rows(arms, d)
+    return arms, lengths, d, moments, -(d @ v + moments @ omega)
 
 
 def inverse_kinematics(robot: Robot, position: ArrayLike, R: ArrayLike | None = None) -> CableKinematics:

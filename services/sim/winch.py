@@ -62,7 +62,7 @@ from typing import Literal
 import dartpy as dart
 import numpy as np
 from cdpr.dynamics import gravity_wrench, mass_matrix
-from cdpr.kinematics import inverse_kinematics
+from cdpr.kinematics import cable_geometry, inverse_kinematics
 from cdpr.robot import GRAVITY, Robot
 from cdpr.rotation import Array, cross_rows
 from cdpr.scenario import Scenario, SimSpec
@@ -363,12 +363,8 @@ class WinchSim(ABC):
         tf = self._body.getTransform()
         p, R = tf.translation(), tf.rotation()
         v, w = self._body.getLinearVelocity(), self._body.getAngularVelocity()
-        arms = self._b @ R.T
+        arms, lengths, d, _, rates = cable_geometry(self._a, self._b, p, R, v, w)
         points = p + arms
-        vec = self._a - points
-        lengths = np.sqrt(np.einsum("ij,ij->i", vec, vec))
-        d = vec / lengths[:, None]
-        rates = -(d @ v + cross_rows(arms, d) @ w)
         g = Geometry(*(_readonly(x) for x in (p, R, np.concatenate((v, w)), points, arms, lengths, d, rates)))
         self._geometry = g
         return g
