@@ -1,15 +1,19 @@
 """`cdpr run` and `cdpr up`: start a session's services as child processes and watch it to the end.
 
-The launcher hosts the session's Zenoh router in its own process (listening on loopback by default)
-and every service connects to it as a client, so no external router is needed and the declaration
-order is well defined: a service's subscribers reach the router before its liveliness token, so when
-the clock sees the token the service can already be reached. The launcher's own monitor subscribes
-(on the router itself) before any service starts, computes the run summary, and prints it as the last
-line of stdout.
+The launcher hosts the session's Zenoh router in its own process (listening on loopback by default),
+so no external router is needed. When every service runs on this machine (`cdpr run`, `cdpr up`
+without ``--without``) the children are Zenoh peers: each connects to the router, learns the others
+from it and links to them directly on loopback, so a message of the loop takes one hop. With remote
+participants every service is a client of the router, like the remote ones. Either way a service
+declares its subscribers before its liveliness token, on the same links, so when the clock sees the
+token the service can already be reached. The launcher's own monitor subscribes (on the router
+itself) before any service starts, computes the run summary, and prints it as the last line of
+stdout.
 """
 
 from __future__ import annotations
 
+import gc
 import json
 import os
 import signal
@@ -20,13 +24,16 @@ import time
 from pathlib import Path
 from typing import Any
 
+import zenoh
+
 from cdpr.errors import InputError
 from cdpr.metrics import RunMetrics
 from cdpr.protocol import Command, Keys, ProtocolError, ServiceStats, Setpoint, State, Status
 from cdpr.scenario import Scenario
 from cdpr.service import PARENT_ENV
-from cdpr.transport import Inbox, StopFlag, log, open_session, zenoh_config
+from cdpr.transport import Inbox, StopFlag, log, open_session, pin_thread_state, zenoh_config
 
+PEER_LISTEN = "tcp/127.0.0.1:0"  # where a local child listens for its peers: loopback, any free port
 STOP_GRACE = 4.0  # seconds a child gets to stop after SIGTERM before it is killed
 FINISH_GRACE = 60.0  # after a normal end, seconds the services get to leave by themselves (the recorder
 #                     may still be writing a large file)
@@ -78,6 +85,35 @@ class Children:
         return {n: p.returncode for n, p in self.procs.items()}
 
 
+class Tape:
+    """The loop's messages as the launcher's monitor receives them, kept raw and decoded after the run.
+
+    Each sample is appended right in Zenoh's callback, on the thread that received it (the binding's
+    ``indirect=False``): no Python object per message beyond its bytes, no thread woken, no queue. In
+    ``cdpr run`` that thread is the session router's, so the callback must never wait long for this
+    process's GIL: the launcher's main thread only wakes a few times a second while the loop runs,
+    and its long-lived objects are frozen out of the garbage collector's sight (``gc.freeze``).
+    """
+
+    def __init__(self) -> None:
+        self.kinds: list[str] = []
+        self.payloads: list[bytes] = []
+
+    def subscribe(self, session: zenoh.Session, key: str, kind: str) -> zenoh.Subscriber:
+        add_kind, add_payload, pin = self.kinds.append, self.payloads.append, pin_thread_state
+
+        def on_sample(sample: zenoh.Sample) -> None:
+            pin()
+            add_payload(sample.payload.to_bytes())
+            add_kind(kind)
+
+        return session.declare_subscriber(key, zenoh.handlers.Callback(on_sample, indirect=False))
+
+    def items(self) -> list[tuple[str, bytes]]:
+        n = min(len(self.kinds), len(self.payloads))
+        return list(zip(self.kinds[:n], self.payloads[:n], strict=True))
+
+
 def run_session(
     scenario: Scenario,
     session_id: str = "default",
@@ -112,15 +148,25 @@ def run_session(
     exit_ok = False
     with open_session(conf, "cdpr run") as session:
         inbox = Inbox()
+        tape = Tape()
         subs = [
-            inbox.subscribe(session, keys.state, "state"),
-            inbox.subscribe(session, keys.setpoint, "setpoint"),
-            inbox.subscribe(session, keys.command, "command"),
+            tape.subscribe(session, keys.state, "state"),
+            tape.subscribe(session, keys.setpoint, "setpoint"),
+            tape.subscribe(session, keys.command, "command"),
             inbox.subscribe(session, keys.status, "status"),
             inbox.subscribe(session, keys.stats_all, "stats"),
         ]
+        # What the launcher made so far lives as long as the run: out of the garbage collector's sight
+        # (a full collection would otherwise scan it all, holding the GIL the tape's callbacks need).
+        gc.collect()
+        gc.freeze()
+        # All on this machine: the children are peers, linked to each other directly on loopback (a
+        # message takes one hop instead of two through the router, which the launcher's process would
+        # have to forward); the router then only introduces them and serves the monitor. With remote
+        # participants, every service is a client of the router, as the remote ones are.
+        mode_args = ["--zenoh-mode", "client"] if remote else ["--zenoh-mode", "peer", "--listen", PEER_LISTEN]
         common = [scenario.source, "--session", session_id, "--duration", repr(scenario.duration),
-                  "--zenoh-mode", "client", "--connect", local]
+                  *mode_args, "--connect", local]
         try:
             if remote:
                 log("cdpr", f"waiting for {', '.join(without)} to join session {session_id!r} at {', '.join(listen_eps)}")
@@ -147,7 +193,7 @@ def run_session(
                         except ProtocolError:
                             pass
                     else:
-                        raw.append((ev.kind, ev.payload))  # decoded after the run: keep the CPU for the loop
+                        raw.append((ev.kind, ev.payload))
                 if final is not None and final.state in ("finished", "aborted"):
                     exit_ok = final.state == "finished"
                     break
@@ -171,7 +217,7 @@ def run_session(
             raw.extend((ev.kind, ev.payload) for ev in inbox.drain(0.05))  # the services' last words
             for s in subs:
                 s.undeclare()
-    for kind, payload in raw:
+    for kind, payload in (*tape.items(), *raw):
         try:
             if kind == "state":
                 metrics.add_state(State.decode(payload, m), payload)
