@@ -186,6 +186,12 @@ def _zenoh_options(f: Callable[..., Any]) -> Callable[..., Any]:
     return click.option("--zenoh-mode", type=click.Choice(["peer", "client"]), default="peer", show_default=True)(f)
 
 
+def _rt_option(f: Callable[..., Any]) -> Callable[..., Any]:
+    return click.option("--rt-priority", type=int, default=None, metavar="1-99",
+                        help="run under SCHED_FIFO at this priority (realtime mode on a busy machine; "
+                             "needs CAP_SYS_NICE)")(f)
+
+
 def _load(scenario: str, duration: float | None) -> Any:
     from cdpr.scenario import load_scenario
 
@@ -196,12 +202,14 @@ def _load(scenario: str, duration: float | None) -> Any:
 
 def _serve(name: str, scenario: str, session_id: str, duration: float | None, zenoh_mode: str,
            connect: tuple[str, ...], listen: tuple[str, ...], zenoh_config: str | None, connect_timeout: float,
-           **extra: Any) -> None:
+           rt_priority: int | None = None, **extra: Any) -> None:
     from cdpr.protocol import Keys
-    from cdpr.service import serve
+    from cdpr.service import serve, set_realtime_priority
     from cdpr.transport import zenoh_config as make_config
 
     sc = _load(scenario, duration)
+    if rt_priority is not None:
+        set_realtime_priority(rt_priority)  # before Zenoh's threads exist: they inherit it
     try:
         keys = Keys(session_id)
     except ValueError as exc:
@@ -236,6 +244,7 @@ def _serve(name: str, scenario: str, session_id: str, duration: float | None, ze
 @cli.command()
 @_scenario_options
 @_zenoh_options
+@_rt_option
 def sim(**kw: Any) -> None:
     """Run the sim service (DART physics) for SCENARIO."""
     _serve("sim", **kw)
@@ -244,6 +253,7 @@ def sim(**kw: Any) -> None:
 @cli.command()
 @_scenario_options
 @_zenoh_options
+@_rt_option
 def trajectory(**kw: Any) -> None:
     """Run the trajectory service for SCENARIO."""
     _serve("trajectory", **kw)
@@ -252,6 +262,7 @@ def trajectory(**kw: Any) -> None:
 @cli.command()
 @_scenario_options
 @_zenoh_options
+@_rt_option
 def controller(**kw: Any) -> None:
     """Run the controller service (feedback linearisation + tension distribution) for SCENARIO."""
     _serve("controller", **kw)
@@ -260,6 +271,7 @@ def controller(**kw: Any) -> None:
 @cli.command()
 @_scenario_options
 @_zenoh_options
+@_rt_option
 @click.option("--mode", type=click.Choice(["fast", "realtime"]), default="fast", show_default=True)
 @click.option("--expect", default="sim,trajectory,controller", show_default=True,
               help="comma-separated participants to wait for")
@@ -295,6 +307,7 @@ def _run_options(f: Callable[..., Any]) -> Callable[..., Any]:
     f = click.option("--spawn", is_flag=True, help="stream the recording to a new Rerun viewer")(f)
     f = click.option("--rrd", type=click.Path(), default=None, help="write the recording to this .rrd file")(f)
     f = click.option("--mode", type=click.Choice(["fast", "realtime"]), default="fast", show_default=True)(f)
+    f = _rt_option(f)
     return _scenario_options(f)
 
 
@@ -530,6 +543,27 @@ def export_sdf(robot: str, output: str | None, tree: bool) -> None:
     joints = model.findall("joint")
     _emit({"robot": r.name, "file": path, "links": len(model.findall("link")), "joints": len(joints),
            "ball_joints": sum(j.get("type") == "ball" for j in joints)})
+
+
+# ------------------------------------------------------------------------------------------------
+# Performance
+
+
+@cli.command()
+@click.option("--quick", is_flag=True, help="every part, shorter (under two minutes)")
+@click.option("--out", type=click.Path(dir_okay=False), default="bench.json", show_default=True,
+              help="where the JSON results go")
+@click.option("--scenario", default="caroca_15kg", show_default=True, help="scenario of the loop figures")
+def bench(quick: bool, out: str, scenario: str) -> None:
+    """Measure the loop: monolithic ceiling, distributed loop, Zenoh round trip, realtime ticks, TDA
+    solve times, scaling with sessions and cables. Prints a table; writes every figure to --out."""
+    from pathlib import Path
+
+    from cdpr.bench import FULL, QUICK, run_bench, table
+    from cdpr.scenario import load_scenario
+
+    load_scenario(scenario)  # fail early, with one line, on a bad scenario
+    click.echo(table(run_bench(QUICK if quick else FULL, scenario, Path(out))))
 
 
 def main(argv: list[str] | None = None) -> None:

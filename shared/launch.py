@@ -30,7 +30,7 @@ from cdpr.errors import InputError
 from cdpr.metrics import RunMetrics
 from cdpr.protocol import Command, Keys, ProtocolError, ServiceStats, Setpoint, State, Status
 from cdpr.scenario import Scenario
-from cdpr.service import PARENT_ENV
+from cdpr.service import PARENT_ENV, set_realtime_priority
 from cdpr.transport import Inbox, StopFlag, log, open_session, pin_thread_state, zenoh_config
 
 PEER_LISTEN = "tcp/127.0.0.1:0"  # where a local child listens for its peers: loopback, any free port
@@ -126,6 +126,7 @@ def run_session(
     without: tuple[str, ...] = (),
     listen: tuple[str, ...] = (),
     join_timeout: float | None = None,
+    rt_priority: int | None = None,
 ) -> int:
     try:
         keys = Keys(session_id)
@@ -136,6 +137,10 @@ def run_session(
     local = local_endpoint(listen_eps[0])
     recording = bool(rrd or spawn or connect_viewer)
     expected = ["sim", "trajectory", "controller"] + (["recorder"] if recording else [])
+    if rt_priority is not None:
+        # the session's router (this process); each loop service sets its own (--rt-priority below),
+        # the recorder keeps the normal scheduling (it writes in bursts: no CPU to take from the loop)
+        set_realtime_priority(rt_priority, inherited=False)
     stop = StopFlag().install()
     conf = zenoh_config("router", listen=listen_eps)
     metrics = RunMetrics()
@@ -167,13 +172,14 @@ def run_session(
         mode_args = ["--zenoh-mode", "client"] if remote else ["--zenoh-mode", "peer", "--listen", PEER_LISTEN]
         common = [scenario.source, "--session", session_id, "--duration", repr(scenario.duration),
                   *mode_args, "--connect", local]
+        loop = [*common, "--rt-priority", str(rt_priority)] if rt_priority is not None else common
         try:
             if remote:
                 log("cdpr", f"waiting for {', '.join(without)} to join session {session_id!r} at {', '.join(listen_eps)}")
-            children.start("clock", [*common, "--mode", mode, "--expect", ",".join(expected)])
+            children.start("clock", [*loop, "--mode", mode, "--expect", ",".join(expected)])
             for name in ("sim", "trajectory", "controller"):
                 if name not in without:
-                    children.start(name, common)
+                    children.start(name, loop)
             if recording:
                 rec = [*common]
                 if rrd:

@@ -74,6 +74,8 @@ def test_tda_payload_and_wrench_and_limits() -> None:
         (("robots", "/no/such/file.yaml"), "/no/such/file.yaml"),
         (("run", "caroca_15kg", "--duration", "-1"), "--duration"),
         (("run", "caroca_15kg", "--session", "bad id!"), "--session"),
+        (("run", "caroca_15kg", "--rt-priority", "0"), "--rt-priority"),
+        (("sim", "caroca_15kg", "--rt-priority", "100"), "--rt-priority"),
     ],
 )
 def test_bad_arguments_give_one_line_and_exit_2(args: tuple[str, ...], needle: str) -> None:

@@ -42,3 +42,18 @@ def test_same_inputs_same_tensions() -> None:
         ra, rb = a.step(st, sp), b.step(st, sp)
         assert np.array_equal(ra.tensions, rb.tensions)
         sim.step(ra.tensions)
+
+
+def test_warm_up_leaves_the_answers_unchanged() -> None:
+    """A warmed-up controller answers bit for bit like a fresh one (continuity, whose answer depends on
+    the previous one, included)."""
+    for name in ("caroca_15kg", "caroca_15kg_continuity"):
+        sc = load_scenario(name)
+        fresh, warmed = ControllerCore.from_scenario(sc), ControllerCore.from_scenario(sc)
+        sim = PlatformSim(sc.robot, sc.dt, sc.initial_position, sc.initial_rotation)
+        warmed.warm_up(state_message(sim.state(), 0), setpoint_at(sc.trajectory, 3000, sc.dt))
+        for k in range(30):
+            state, setpoint = state_message(sim.state(), 0), setpoint_at(sc.trajectory, k, sc.dt)
+            a, b = fresh.step(state, setpoint), warmed.step(state, setpoint)
+            assert np.array_equal(a.tensions, b.tensions) and a.status == b.status
+            sim.step(a.tensions)

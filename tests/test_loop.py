@@ -3,20 +3,24 @@
 from __future__ import annotations
 
 import math
+import os
 import re
+import shutil
 import signal
 import subprocess
 import sys
 import threading
 import time
+from pathlib import Path
 
 import msgpack
 import pytest
 import zenoh
 
+from cdpr.bench import rt_priority_allowed
 from cdpr.protocol import Command, Keys, Status
 from cdpr.transport import zenoh_config
-from conftest import CDPR, cdpr, free_port, last_json_line, wait_no_processes
+from conftest import CDPR, cdpr, free_port, last_json_line, processes_mentioning, wait_no_processes
 
 pytestmark = pytest.mark.slow
 
@@ -164,3 +168,57 @@ def test_run_rejects_an_unknown_scenario() -> None:
     lines = proc.stderr.strip().splitlines()
     assert len(lines) == 1 and "no_such_scenario" in lines[0] and "Traceback" not in proc.stderr
     assert sys.executable  # the test ran with the project's interpreter
+
+
+def _roles_and_policies(session: str) -> dict[str, int]:
+    """{role: scheduling policy} of the processes of a session (``run``, ``sim``, …), without the
+    SCHED_RESET_ON_FORK flag."""
+    out = {}
+    for pid in processes_mentioning(session):
+        try:
+            argv = Path(f"/proc/{pid}/cmdline").read_bytes().split(b"\0")
+            policy = os.sched_getscheduler(pid) & ~os.SCHED_RESET_ON_FORK
+        except OSError:
+            continue
+        if b"cdpr" in argv[:-1]:
+            out[argv[argv.index(b"cdpr") + 1].decode()] = policy
+    return out
+
+
+@pytest.mark.slow
+def test_rt_priority_puts_the_loop_services_under_sched_fifo(session_id: str, tmp_path: Path) -> None:
+    if not rt_priority_allowed():
+        pytest.skip("SCHED_FIFO is not permitted on this machine")
+    run = subprocess.Popen(
+        [*CDPR, "run", "caroca_15kg", "--session", session_id, "--mode", "realtime", "--duration", "3",
+         "--rt-priority", "10", "--rrd", str(tmp_path / "rt.rrd")],
+        stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+    )
+    progress: list[str] = []
+    reader = threading.Thread(target=lambda: progress.extend(iter(run.stderr.readline, "")), daemon=True)
+    reader.start()
+    deadline = time.monotonic() + 60
+    while time.monotonic() < deadline and not any(re.search(r"step [1-9]\d*/", ln) for ln in progress):
+        time.sleep(0.05)
+    policies = _roles_and_policies(session_id)  # the loop is running: every service has set its own
+    out = run.stdout.read()
+    run.wait(timeout=60)
+    assert run.returncode == 0, "".join(progress)
+    loop = {"run", "clock", "sim", "trajectory", "controller"}
+    assert loop | {"recorder"} <= set(policies), policies
+    assert all(policies[role] == os.SCHED_FIFO for role in loop), policies
+    assert policies["recorder"] == os.SCHED_OTHER  # writes in bursts: keeps the normal scheduler
+    s = last_json_line(out)
+    assert s["exit_ok"] and s["steps"] == 3000 and 0.0 <= s["on_time_fraction"] <= 1.0
+
+
+@pytest.mark.skipif(not (shutil.which("setpriv") and shutil.which("prlimit")), reason="needs setpriv and prlimit")
+def test_rt_priority_not_permitted_is_one_line_and_exit_2() -> None:
+    # without CAP_SYS_NICE and with an rtprio limit of 0, SCHED_FIFO is refused to anyone
+    proc = subprocess.run(
+        ["prlimit", "--rtprio=0:0", "--", "setpriv", "--bounding-set=-sys_nice", "--", *CDPR, "run", "caroca_15kg",
+         "--rt-priority", "10"], capture_output=True, text=True, timeout=60, check=False,
+    )
+    assert proc.returncode == 2, proc.stderr
+    lines = proc.stderr.strip().splitlines()
+    assert len(lines) == 1 and "--rt-priority" in lines[0] and "CAP_SYS_NICE" in lines[0], proc.stderr

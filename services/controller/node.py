@@ -12,6 +12,7 @@ from typing import Any
 import zenoh
 
 from cdpr.protocol import Command, Keys, ProtocolError, Setpoint, State
+from cdpr.rotation import matrix_to_quat
 from cdpr.scenario import Scenario
 from cdpr.service import Node
 from cdpr.transport import PUBLISH_OPTS, Event, Inbox, RateLimitedLog, log
@@ -25,6 +26,11 @@ class ControllerNode(Node):
     def __init__(self, scenario: Scenario, keys: Keys) -> None:
         super().__init__(keys)
         self.core = ControllerCore.from_scenario(scenario)
+        # held at the start pose, at rest: about what step 0 brings
+        pose = (*scenario.initial_position.tolist(), *matrix_to_quat(scenario.initial_rotation).tolist())
+        m = scenario.robot.m
+        self.core.warm_up(State(0, 0.0, pose, (0.0,) * 6, (1.0,) * m, (0.0,) * m),
+                          Setpoint(0, 0.0, pose, (0.0,) * 6, (0.0,) * 6))
         self.m = scenario.robot.m
         self.states: dict[int, State] = {}
         self.setpoints: dict[int, Setpoint] = {}
