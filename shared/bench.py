@@ -9,9 +9,10 @@ when the machine is shared and its absolute speed drifts):
    ceiling of the distributed loop;
 2. ``distributed``: ``cdpr run SCENARIO`` (fast mode) as a subprocess: steps/s, RTF, its ratio to (1),
    and the CPU each process spends per step;
-3. ``zenoh_rtt``: a raw Zenoh round trip with the project's settings — two processes through a router
-   on loopback, each answering in its :class:`cdpr.transport.Inbox` callback, ``PUBLISH_OPTS``: the
-   floor of one hop;
+3. ``zenoh_rtt``: a raw Zenoh round trip with the project's settings — two processes on loopback,
+   each answering in its :class:`cdpr.transport.Inbox` callback, ``PUBLISH_OPTS``; as clients of a
+   router (how remote participants talk) and as peers linked directly (how ``cdpr run``'s services
+   talk): the floor of one hop;
 4. ``realtime``: ``cdpr run SCENARIO --mode realtime --duration D``: the share of ticks issued within
    1 ms of their deadline and the lateness percentiles;
 5. ``tda``: the tension distribution's solve time per method for 4, 8, 12 and 16 cables, along a
@@ -327,12 +328,23 @@ _PING, _PONG = "cdpr/bench-rtt/ping", "cdpr/bench-rtt/pong"
 _RTT_PAYLOAD = 240  # bytes, about a state message of 8 cables
 
 
-def _rtt_echo(endpoint: str) -> None:
+def _rtt_config(endpoint: str, mode: str) -> Any:
+    """Clients of the router at ``endpoint``, or peers that meet through it and link directly (as the
+    services of ``cdpr run`` do)."""
+    from cdpr.launch import PEER_LISTEN
+    from cdpr.transport import zenoh_config
+
+    if mode == "peer":
+        return zenoh_config("peer", connect=[endpoint], listen=[PEER_LISTEN])
+    return zenoh_config("client", connect=[endpoint])
+
+
+def _rtt_echo(endpoint: str, mode: str) -> None:
     """Answer every ping with the same payload, from the Inbox callback (as the services do)."""
-    from cdpr.transport import PUBLISH_OPTS, Inbox, open_session, zenoh_config
+    from cdpr.transport import PUBLISH_OPTS, Inbox, open_session
 
     done = threading.Event()
-    with open_session(zenoh_config("client", connect=[endpoint]), "bench echo") as session:
+    with open_session(_rtt_config(endpoint, mode), "bench echo") as session:
         pub = session.declare_publisher(_PONG, **PUBLISH_OPTS)
 
         def on_ping(event: Any) -> None:
@@ -349,16 +361,16 @@ def _rtt_echo(endpoint: str) -> None:
         pub.undeclare()
 
 
-def _rtt_ping(endpoint: str, count: int, warmup: int = 300) -> None:
+def _rtt_ping(endpoint: str, count: int, mode: str, warmup: int = 300) -> None:
     """Ping-pong ``count`` times (after ``warmup``), the next ping sent from the pong's callback."""
-    from cdpr.transport import PUBLISH_OPTS, Inbox, open_session, zenoh_config
+    from cdpr.transport import PUBLISH_OPTS, Inbox, open_session
 
     rtts: list[float] = []
     seq = [-1]  # the sequence number in flight; negative while probing for the echo
     sent_at = [0.0]
     started, done = threading.Event(), threading.Event()
     cpu = [0.0]
-    with open_session(zenoh_config("client", connect=[endpoint]), "bench ping") as session:
+    with open_session(_rtt_config(endpoint, mode), "bench ping") as session:
         pub = session.declare_publisher(_PING, **PUBLISH_OPTS)
         pad = bytes(_RTT_PAYLOAD - 8)
 
@@ -409,23 +421,31 @@ def _rtt_ping(endpoint: str, count: int, warmup: int = 300) -> None:
 
 
 def bench_zenoh_rtt(count: int) -> dict[str, Any]:
-    """A router in this process, the echo and the pinger as two client processes on loopback."""
+    """A router in this process, the echo and the pinger as two processes on loopback: first as clients
+    of the router (two hops each way: how remote participants talk), then as peers linked directly
+    (one hop each way: how the services of ``cdpr run`` talk, under ``peers``)."""
+    result = _zenoh_rtt(count, "client")
+    result["peers"] = _zenoh_rtt(count, "peer")
+    return result
+
+
+def _zenoh_rtt(count: int, mode: str) -> dict[str, Any]:
     from cdpr.launch import free_port
     from cdpr.transport import open_session, zenoh_config
 
     endpoint = f"tcp/127.0.0.1:{free_port()}"
     module = [sys.executable, "-m", __name__]
     with open_session(zenoh_config("router", listen=[endpoint]), "bench router"):
-        echo = subprocess.Popen([*module, "echo", endpoint], stdout=subprocess.PIPE, text=True)
+        echo = subprocess.Popen([*module, "echo", endpoint, mode], stdout=subprocess.PIPE, text=True)
         try:
-            ping = subprocess.run([*module, "ping", endpoint, str(count)], capture_output=True, text=True,
-                                  timeout=600, check=False)
+            ping = subprocess.run([*module, "ping", endpoint, str(count), mode], capture_output=True,
+                                  text=True, timeout=600, check=False)
             echo_out, _ = echo.communicate(timeout=30)
         finally:
             if echo.poll() is None:
                 echo.kill()
     if ping.returncode != 0 or not ping.stdout.strip():
-        raise RuntimeError(f"the Zenoh ping failed: {ping.stderr.strip()[-500:]}")
+        raise RuntimeError(f"the Zenoh ping ({mode}) failed: {ping.stderr.strip()[-500:]}")
     result: dict[str, Any] = json.loads(ping.stdout.strip().splitlines()[-1])
     echo_cpu = json.loads(echo_out.strip().splitlines()[-1])["cpu_s"] if echo_out.strip() else math.nan
     result["echo_cpu_us"] = 1e6 * echo_cpu / max(result["count"], 1)
@@ -773,9 +793,12 @@ def table(r: dict[str, Any]) -> str:
         ("    ratio to the monolithic loop", _fmt(dist["ratio_to_monolithic"], 2)),
         ("    CPU of all processes, us/step", _fmt(dist["cpu_us_per_step"])),
         *((f"      {k}", _fmt(v)) for k, v in dist["cpu_us_per_step_by_process"].items()),
-        ("3 Zenoh round trip through the router, median us", _fmt(rtt["median_us"], 1)),
+        ("3 Zenoh round trip, clients through the router, median us", _fmt(rtt["median_us"], 1)),
         ("    p99 us", _fmt(rtt["p99_us"], 1)),
-        ("    one message through the router (half), us", _fmt(rtt["one_way_us"], 1)),
+        ("    one message (half), us", _fmt(rtt["one_way_us"], 1)),
+        ("  peers linked directly (as in cdpr run), median us", _fmt(rtt["peers"]["median_us"], 1)),
+        ("    p99 us", _fmt(rtt["peers"]["p99_us"], 1)),
+        ("    one message (half), us", _fmt(rtt["peers"]["one_way_us"], 1)),
         (f"4 realtime 1 kHz, {rt['duration_s']:g} s: ticks within 1 ms",
          f"{100 * rt['on_time_fraction']:.3f} %"),
         ("    lateness p50 / p99 / p99.9 / max, ms",
@@ -826,8 +849,8 @@ def table(r: dict[str, Any]) -> str:
 if __name__ == "__main__":  # helper processes of the round-trip benchmark
     role, *rest = sys.argv[1:]
     if role == "echo":
-        _rtt_echo(rest[0])
+        _rtt_echo(rest[0], rest[1])
     elif role == "ping":
-        _rtt_ping(rest[0], int(rest[1]))
+        _rtt_ping(rest[0], int(rest[1]), rest[2])
     else:
         raise SystemExit(f"unknown role {role!r}")

@@ -124,9 +124,11 @@ class FeedbackLaw:
     ) -> tuple[Array, Array, Array]:
         x, y, z, qx, qy, qz, qw = pose
         xd, yd, zd, dx, dy, dz, dw = pose_d
-        n = math.sqrt(qx * qx + qy * qy + qz * qz + qw * qw)
+        # A zero quaternion has no rotation: NaN, as quat_to_matrix gives (the distributor then
+        # reports invalid_input), never a ZeroDivisionError in the controller.
+        n = math.sqrt(qx * qx + qy * qy + qz * qz + qw * qw) or math.nan
         qx, qy, qz, qw = qx / n, qy / n, qz / n, qw / n
-        n = math.sqrt(dx * dx + dy * dy + dz * dz + dw * dw)
+        n = math.sqrt(dx * dx + dy * dy + dz * dz + dw * dw) or math.nan
         dx, dy, dz, dw = dx / n, dy / n, dz / n, dw / n
         # e_R = log(q_d ⊗ q⁻¹) as a rotation vector, angle in [0, π]
         ew = dw * qw + dx * qx + dy * qy + dz * qz

@@ -41,25 +41,38 @@ class CableKinematics:
         return -self.wrench_matrix.T
 
 
+def _chords(frame_points: Array, platform_points: Array, position: Array, R: Array
+            ) -> tuple[Array, Array, Array, Array, Array]:
+    """Eq. 2 for every cable: ``(arms R b_i, vectors l_i, lengths, unit d_i, moments (R b_i) × d_i)``.
+    The one place the cable geometry is computed; a zero length gives NaN directions (and a numpy
+    warning, which callers that expect it silence)."""
+    arms = platform_points @ R.T  # (m, 3) rows R b_i
+    vectors = frame_points - position - arms  # rows l_i, platform → frame
+    lengths = np.sqrt(np.einsum("ij,ij->i", vectors, vectors))
+    d = vectors / lengths[:, None]
+    return arms, vectors, lengths, d, cross_rows(arms, d)
+
+
+def _wrench_matrix(d: Array, moments: Array) -> Array:
+    W = np.empty((6, len(d)))
+    W[:3] = d.T
+    W[3:] = moments.T
+    return W
+
+
 def cable_kinematics(frame_points: Array, platform_points: Array, position: ArrayLike, R: ArrayLike) -> CableKinematics:
     """Eq. 2–4 for arbitrary attach points (vectorised over cables)."""
     t = np.asarray(position, dtype=float)
-    Rb = platform_points @ np.asarray(R, dtype=float).T  # (m, 3) rows R b_i
-    vectors = frame_points - t - Rb
-    lengths = np.sqrt(np.einsum("ij,ij->i", vectors, vectors))
     with np.errstate(invalid="ignore", divide="ignore"):
-        d = vectors / lengths[:, None]
-    W = np.empty((6, len(lengths)))
-    W[:3] = d.T
-    W[3:] = cross_rows(Rb, d).T
-    return CableKinematics(vectors, lengths, d, t + Rb, W)
+        arms, vectors, lengths, d, moments = _chords(frame_points, platform_points, t, np.asarray(R, dtype=float))
+    return CableKinematics(vectors, lengths, d, t + arms, _wrench_matrix(d, moments))
 
 
 class WrenchMatrix:
     """The wrench matrix W (6×m) of one robot at any pose, with the attach points set up once.
 
-    ``W(position, R)`` equals ``inverse_kinematics(robot, position, R).wrench_matrix`` bit for bit, in a
-    handful of vectorised operations and without the other outputs of :func:`cable_kinematics`.
+    ``W(position, R)`` equals ``inverse_kinematics(robot, position, R).wrench_matrix`` bit for bit,
+    without the other outputs of :func:`cable_kinematics` (for the controller's every step).
     """
 
     def __init__(self, robot: Robot) -> None:
@@ -67,13 +80,8 @@ class WrenchMatrix:
         self._b = np.array(robot.platform_points, dtype=float)
 
     def __call__(self, position: ArrayLike, R: ArrayLike) -> Array:
-        Rb = self._b @ np.asarray(R, dtype=float).T  # rows R b_i
-        vectors = self._a - np.asarray(position, dtype=float) - Rb  # rows l_i (eq. 2)
-        d = vectors / np.sqrt(np.einsum("ij,ij->i", vectors, vectors))[:, None]
-        W = np.empty((6, len(d)))
-        W[:3] = d.T
-        W[3:] = cross_rows(Rb, d).T
-        return W
+        _, _, _, d, moments = _chords(self._a, self._b, np.asarray(position, dtype=float), np.asarray(R, dtype=float))
+        return _wrench_matrix(d, moments)
 
 
 def cable_geometry(
@@ -87,11 +95,7 @@ def cable_geometry(
     with linear velocity ``v`` and angular velocity ``omega`` (world frame). What a simulator reads
     off its body every step; no checks (the lengths must not be zero).
     """
-    arms = platform_points @ R.T  # rows R b_i
-    vectors = frame_points - position - arms  # rows l_i (eq. 2)
-    lengths = np.sqrt(np.einsum("ij,ij->i", vectors, vectors))
-    d = vectors / lengths[:, None]
-    moments = cross_rows(arms, d)
+    arms, _, lengths, d, moments = _chords(frame_points, platform_points, position, R)
     return arms, lengths, d, moments, -(d @ v + moments @ omega)
 
 

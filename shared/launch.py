@@ -14,6 +14,7 @@ stdout.
 from __future__ import annotations
 
 import gc
+import itertools
 import json
 import os
 import signal
@@ -89,29 +90,23 @@ class Tape:
     """The loop's messages as the launcher's monitor receives them, kept raw and decoded after the run.
 
     Each sample is appended right in Zenoh's callback, on the thread that received it (the binding's
-    ``indirect=False``): no Python object per message beyond its bytes, no thread woken, no queue. In
+    ``indirect=False``): a (kind, bytes) pair per message, no thread woken, no queue. In
     ``cdpr run`` that thread is the session router's, so the callback must never wait long for this
     process's GIL: the launcher's main thread only wakes a few times a second while the loop runs,
     and its long-lived objects are frozen out of the garbage collector's sight (``gc.freeze``).
     """
 
     def __init__(self) -> None:
-        self.kinds: list[str] = []
-        self.payloads: list[bytes] = []
+        self.items: list[tuple[str, bytes]] = []  # (kind, payload) in arrival order
 
     def subscribe(self, session: zenoh.Session, key: str, kind: str) -> zenoh.Subscriber:
-        add_kind, add_payload, pin = self.kinds.append, self.payloads.append, pin_thread_state
+        add, pin = self.items.append, pin_thread_state
 
         def on_sample(sample: zenoh.Sample) -> None:
             pin()
-            add_payload(sample.payload.to_bytes())
-            add_kind(kind)
+            add((kind, sample.payload.to_bytes()))  # one append: atomic, whichever thread runs it
 
         return session.declare_subscriber(key, zenoh.handlers.Callback(on_sample, indirect=False))
-
-    def items(self) -> list[tuple[str, bytes]]:
-        n = min(len(self.kinds), len(self.payloads))
-        return list(zip(self.kinds[:n], self.payloads[:n], strict=True))
 
 
 def run_session(
@@ -223,7 +218,7 @@ def run_session(
             raw.extend((ev.kind, ev.payload) for ev in inbox.drain(0.05))  # the services' last words
             for s in subs:
                 s.undeclare()
-    for kind, payload in (*tape.items(), *raw):
+    for kind, payload in itertools.chain(tape.items, raw):
         try:
             if kind == "state":
                 metrics.add_state(State.decode(payload, m), payload)

@@ -13,8 +13,9 @@ Two ways to run a node, one event at a time either way:
 * direct (``Node.direct = True``, the lock-step services): the receive thread handles each event itself,
   under the node's lock, then calls :meth:`Node.idle` — no thread hand-off between a message and its
   answer. The main thread only wakes for the node's deadlines (:meth:`Node.timeout`), the once-a-second
-  chores and the end. A deadline is met by sleeping until shortly before it, then yielding the CPU in
-  a loop until it has passed (:data:`SPIN`), instead of trusting the OS timer's slack.
+  chores, a signal and the end. A deadline is met by sleeping until shortly before it, then polling
+  the clock until it has passed (:data:`SPIN`), instead of trusting the OS timer's slack — unless the
+  process runs under SCHED_FIFO (``--rt-priority``), whose timers have no slack and wake it at once.
 """
 
 from __future__ import annotations
@@ -60,7 +61,8 @@ class Node:
         """One event from the inbox (never a ``status`` event: :func:`serve` handles those)."""
 
     def idle(self, now: float) -> None:
-        """Called after each batch of events, and at least every ``Node.idle_period`` seconds."""
+        """Called after each event (direct nodes; on whichever thread handled it) or batch of events
+        (queued nodes), and at least every ``Node.idle_period`` seconds."""
 
     def timeout(self, now: float) -> float:
         """How long the loop may wait for the next event before calling :meth:`idle`."""
@@ -103,13 +105,20 @@ def set_realtime_priority(priority: int, inherited: bool = True) -> None:
         ) from None
 
 
+def _realtime_scheduled() -> bool:
+    """Whether the calling thread runs under SCHED_FIFO (see :func:`set_realtime_priority`)."""
+    if not hasattr(os, "sched_getscheduler"):
+        return False
+    return os.sched_getscheduler(0) & ~getattr(os, "SCHED_RESET_ON_FORK", 0) == os.SCHED_FIFO
+
+
 def _parent_alive(pid: int | None) -> bool:
     if pid is None:
         return True
     return os.getppid() == pid
 
 
-SPIN = 2e-4  # seconds before a deadline at which the main thread stops sleeping and starts yielding
+SPIN = 2e-4  # seconds before a deadline at which the main thread stops sleeping and starts polling
 
 
 class _Dispatcher:
@@ -121,10 +130,12 @@ class _Dispatcher:
     for the main thread to raise.
     """
 
-    def __init__(self, node: Node, on_event: Callable[[Event], None], wake: threading.Event) -> None:
+    def __init__(self, node: Node, on_event: Callable[[Event], None], wake: threading.Event,
+                 stop: StopFlag) -> None:
         self._node = node
         self._on_event = on_event
         self._wake = wake
+        self._stop = stop
         self._lock = threading.RLock()
         self._busy = False
         self._backlog: deque[Event] = deque()
@@ -137,16 +148,18 @@ class _Dispatcher:
             if self._busy:
                 self._backlog.append(event)
                 return
-            if self.closed:
+            if self.closed or self._stop:  # after a signal, nothing more is handled
                 return
             self._busy = True
             try:
                 node = self._node
                 self._on_event(event)
-                while self._backlog and not node.done:
-                    self._on_event(self._backlog.popleft())
-                now = time.monotonic()
-                node.idle(now)
+                while True:
+                    self._drain()
+                    now = time.monotonic()
+                    node.idle(now)  # which may publish to this very process: drained in the next turn
+                    if not self._backlog or node.done:
+                        break
                 if node.done or node.timeout(now) < node.idle_period:
                     self._wake.set()  # the main thread has a deadline to meet, or the end to handle
             except BaseException as exc:
@@ -155,18 +168,24 @@ class _Dispatcher:
             finally:
                 self._busy = False
 
-    def run(self, fn: Callable[[], None]) -> None:
-        """Run ``fn`` (the main thread's chores) under the lock."""
+    def _drain(self) -> None:
+        """Handle the events queued while a handler ran (not after the end or a signal)."""
+        while self._backlog and not self._node.done and not self._stop:
+            self._on_event(self._backlog.popleft())
+
+    def run(self, fn: Callable[[], None]) -> float:
+        """Run ``fn`` (the main thread's chores) under the lock; the node's timeout afterwards."""
         with self._lock:
             if self.closed:
-                return
+                return 0.0
             self._busy = True
             try:
                 fn()
-                while self._backlog and not self._node.done:
-                    self._on_event(self._backlog.popleft())
+                self._drain()
+                return self._node.timeout(time.monotonic())
             except BaseException as exc:
                 self.error, self.closed = exc, True
+                return 0.0
             finally:
                 self._busy = False
 
@@ -179,11 +198,12 @@ def _sleep_until(wake: threading.Event, deadline: float, precise: bool) -> None:
     """Sleep until ``deadline`` (time.monotonic) or until ``wake`` is set, whichever comes first.
 
     ``precise``: sleep only until :data:`SPIN` before the deadline, then poll the clock (releasing
-    the GIL at every turn) until it has passed — the OS timer alone may wake a thread late by its
-    slack and the scheduler's latency.
+    the GIL at every turn, the CPU kept) until it has passed — the OS timer alone may wake a thread
+    late by its slack and the scheduler's latency. Not under SCHED_FIFO: there the timer has no slack
+    and the woken thread runs at once, and polling would keep normal processes off that CPU.
     """
     rest = deadline - time.monotonic()
-    if not precise:
+    if not precise or _realtime_scheduled():
         wake.wait(max(rest, 0.0))
         return
     if rest > SPIN and wake.wait(rest - SPIN):
@@ -214,7 +234,8 @@ def serve(node: Node, conf: zenoh.Config, stop: StopFlag | None = None) -> int:
 
     with session:
         wake = threading.Event()
-        dispatcher = _Dispatcher(node, on_event, wake) if node.direct else None
+        dispatcher = _Dispatcher(node, on_event, wake, stop) if node.direct else None
+        stop.on_set(wake.set)  # a signal wakes the main thread at once
         inbox = Inbox(dispatcher)
         keep = node.declare(session, inbox)
         keep.append(inbox.subscribe(session, node.keys.status, "status"))
@@ -248,13 +269,12 @@ def serve(node: Node, conf: zenoh.Config, stop: StopFlag | None = None) -> int:
         try:
             if dispatcher is not None:
                 while not node.done and not stop and dispatcher.error is None:
-                    dispatcher.run(chores)
-                    if node.done or dispatcher.error is not None:
+                    wake.clear()  # before the chores: a wake-up from now on ends the sleep below
+                    timeout = dispatcher.run(chores)
+                    if node.done or stop or dispatcher.error is not None:
                         break
                     now = time.monotonic()
-                    timeout = node.timeout(now)
                     _sleep_until(wake, now + min(timeout, node.idle_period), timeout < node.idle_period)
-                    wake.clear()
                 dispatcher.close()
                 if dispatcher.error is not None:
                     raise dispatcher.error

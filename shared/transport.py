@@ -1,8 +1,9 @@
-"""Zenoh plumbing shared by every service: one config builder, one event loop helper.
+"""Zenoh plumbing shared by every service: the config builder, session opening, subscriptions.
 
 The only place that builds a ``zenoh.Config`` (from CLI flags, ``ZENOH_CONFIG`` or ``--zenoh-config``)
-and the only place that knows how a service waits for messages. Services stay thin: they declare what
-they read, then handle one event at a time in their own loop.
+and that sets Zenoh's thread pools (:data:`ZENOH_RUNTIME`). :class:`Inbox` turns samples into
+:class:`Event` s, queued for a loop or handed to a handler on Zenoh's thread; how a service runs its
+loop on them is :func:`cdpr.service.serve`'s business.
 """
 
 from __future__ import annotations
@@ -206,6 +207,11 @@ class StopFlag:
     def __init__(self) -> None:
         self._event = threading.Event()
         self.signal: int | None = None
+        self._listeners: list[Callable[[], None]] = []
+
+    def on_set(self, listener: Callable[[], None]) -> None:
+        """Call ``listener`` (on the signalled thread) whenever the flag is set, e.g. to wake a wait."""
+        self._listeners.append(listener)
 
     def install(self) -> StopFlag:
         if threading.current_thread() is threading.main_thread():
@@ -215,10 +221,12 @@ class StopFlag:
 
     def _on_signal(self, signum: int, _frame: FrameType | None) -> None:
         self.signal = signum
-        self._event.set()
+        self.set()
 
     def set(self) -> None:
         self._event.set()
+        for listener in self._listeners:
+            listener()
 
     def __bool__(self) -> bool:
         return self._event.is_set()

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from dataclasses import replace
+
 import numpy as np
 
 from cdpr.control import feedback_linearisation
@@ -57,3 +59,20 @@ def test_warm_up_leaves_the_answers_unchanged() -> None:
             a, b = fresh.step(state, setpoint), warmed.step(state, setpoint)
             assert np.array_equal(a.tensions, b.tensions) and a.status == b.status
             sim.step(a.tensions)
+
+
+def test_a_zero_quaternion_is_an_invalid_input_not_a_crash() -> None:
+    sc = load_scenario("caroca_15kg")
+    core = ControllerCore.from_scenario(sc)
+    sim = PlatformSim(sc.robot, sc.dt, sc.initial_position, sc.initial_rotation)
+    good_state, good_sp = state_message(sim.state(), 0), setpoint_at(sc.trajectory, 0, sc.dt)
+    core.step(good_state, good_sp)
+    zero = (0.0, 0.0, 0.0, 0.0)
+    for state, setpoint in (
+        (replace(good_state, pose=(*good_state.pose[:3], *zero)), good_sp),
+        (good_state, replace(good_sp, pose=(*good_sp.pose[:3], *zero))),
+        (replace(good_state, pose=(*good_state.pose[:3], 1e-200, 0.0, 0.0, 0.0)), good_sp),  # squares underflow
+    ):
+        result = core.step(state, setpoint)
+        assert result.status == "invalid_input" and not result.feasible
+        assert np.isfinite(result.tensions).all()  # the last feasible tensions, sent instead

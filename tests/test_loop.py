@@ -137,18 +137,22 @@ def test_bad_commands_do_not_stop_the_sim(session_id: str) -> None:
     assert s["final_position_error"] < 1e-3
 
 
-@pytest.mark.parametrize("sig", [signal.SIGINT, signal.SIGTERM])
-def test_signal_stops_every_child(session_id: str, sig: int) -> None:
-    run = subprocess.Popen(
-        [*CDPR, "run", "caroca_15kg", "--session", session_id],
-        stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
-    )
+def _run_until_stepping(*args: str) -> tuple[subprocess.Popen[str], list[str]]:
+    """``cdpr run ARGS`` in the background, returned once its progress shows a step > 0 (or after 60 s),
+    with the list its stderr lines keep arriving in."""
+    run = subprocess.Popen([*CDPR, "run", *args], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     progress: list[str] = []
     reader = threading.Thread(target=lambda: progress.extend(iter(run.stderr.readline, "")), daemon=True)
     reader.start()
     deadline = time.monotonic() + 60
     while time.monotonic() < deadline and not any(re.search(r"step [1-9]\d*/", ln) for ln in progress):
         time.sleep(0.05)
+    return run, progress
+
+
+@pytest.mark.parametrize("sig", [signal.SIGINT, signal.SIGTERM])
+def test_signal_stops_every_child(session_id: str, sig: int) -> None:
+    run, progress = _run_until_stepping("caroca_15kg", "--session", session_id)
     assert run.poll() is None, "".join(progress)
     sent_at = time.monotonic()
     run.send_signal(sig)
@@ -189,17 +193,8 @@ def _roles_and_policies(session: str) -> dict[str, int]:
 def test_rt_priority_puts_the_loop_services_under_sched_fifo(session_id: str, tmp_path: Path) -> None:
     if not rt_priority_allowed():
         pytest.skip("SCHED_FIFO is not permitted on this machine")
-    run = subprocess.Popen(
-        [*CDPR, "run", "caroca_15kg", "--session", session_id, "--mode", "realtime", "--duration", "3",
-         "--rt-priority", "10", "--rrd", str(tmp_path / "rt.rrd")],
-        stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
-    )
-    progress: list[str] = []
-    reader = threading.Thread(target=lambda: progress.extend(iter(run.stderr.readline, "")), daemon=True)
-    reader.start()
-    deadline = time.monotonic() + 60
-    while time.monotonic() < deadline and not any(re.search(r"step [1-9]\d*/", ln) for ln in progress):
-        time.sleep(0.05)
+    run, progress = _run_until_stepping("caroca_15kg", "--session", session_id, "--mode", "realtime",
+                                        "--duration", "3", "--rt-priority", "10", "--rrd", str(tmp_path / "rt.rrd"))
     policies = _roles_and_policies(session_id)  # the loop is running: every service has set its own
     out = run.stdout.read()
     run.wait(timeout=60)
