@@ -124,6 +124,63 @@ class _Snapshot:
     rates: Array  # (m,) l̇ = J v = −(d_i · v + ((R b_i) × d_i) · ω)
 
 
+class PlatformBody:
+    """The platform of ``robot`` alone in a DART world: a free body (a planar joint in the x–z plane for
+    planar robots) with the robot's mass and inertia, gravity on, never put to sleep. The part every
+    sim model shares; what pulls on the body is the model's business."""
+
+    def __init__(self, robot: Robot, time_step: float) -> None:
+        self.planar = robot.mode == "planar"
+        self.world = dart.simulation.World()
+        self.world.setGravity(GRAVITY)
+        self.world.setTimeStep(time_step)
+        sleep = self.world.getDeactivationOptions()
+        sleep.mEnabled = False  # a slow platform must never be frozen
+        self.world.setDeactivationOptions(sleep)
+        skeleton = dart.dynamics.Skeleton("platform")
+        if self.planar:
+            joint, body = skeleton.createPlanarJointAndBodyNodePair()
+            joint.setZXPlane()  # generalized coordinates [z, x, θ about +y]
+        else:
+            joint, body = skeleton.createFreeJointAndBodyNodePair()
+        body.setName("platform")
+        body.setInertia(dart.dynamics.Inertia(robot.mass, np.zeros(3), np.array(robot.inertia, dtype=float)))
+        self.world.addSkeleton(skeleton)
+        self.joint, self.body = joint, body
+
+    def place(self, p: Array, R: Array, v: Array) -> None:
+        """Put the body at position ``p``, rotation ``R`` with twist ``v`` = [ṫ; ω] (world frame), with no
+        external force on it."""
+        if self.planar:
+            positions, velocities = planar_coordinates(p, R, v)
+            self.joint.setPositions(positions)
+            self.joint.setVelocities(velocities)
+        else:
+            tf = dart.math.Isometry3()
+            tf.set_rotation(R)
+            tf.set_translation(p)
+            world = dart.dynamics.Frame.World()
+            self.joint.setTransform(tf, world)
+            self.joint.setLinearVelocity(v[:3], world, world)
+            self.joint.setAngularVelocity(v[3:], world, world)
+        self.body.clearExternalForces()
+
+
+def start_pose(robot: Robot, position: ArrayLike | None, rotation: ArrayLike | None,
+               twist: ArrayLike | None) -> tuple[Array, Array, Array]:
+    """(p, R, v) of a sim's (re)start, checked: defaults are the robot's home pose, at rest."""
+    p = _vector(robot.home_position if position is None else position, 3, "position")
+    R = _rotation(robot.home_rotation if rotation is None else rotation)
+    return p, R, _vector(np.zeros(6) if twist is None else twist, 6, "twist")
+
+
+def check_dt(dt: float) -> float:
+    """``dt`` as a float; ValueError unless it is a positive finite number of seconds."""
+    if not (np.isfinite(dt) and dt > 0.0):
+        raise ValueError(f"dt must be a positive finite number of seconds (got {dt})")
+    return float(dt)
+
+
 class PlatformSim:
     """A DART world holding the platform of ``robot``, stepped by cable tensions.
 
@@ -139,32 +196,14 @@ class PlatformSim:
         rotation: ArrayLike | None = None,
         twist: ArrayLike | None = None,
     ) -> None:
-        if not (np.isfinite(dt) and dt > 0.0):
-            raise ValueError(f"dt must be a positive finite number of seconds (got {dt})")
         self.robot = robot
-        self.dt = float(dt)
+        self.dt = check_dt(dt)
         self.step_count = 0
         self._a = np.array(robot.frame_points, dtype=float)
         self._b = np.array(robot.platform_points, dtype=float)
-        self._planar = robot.mode == "planar"
         self._zero3 = np.zeros(3)
-        self._world = dart.simulation.World()
-        self._world.setGravity(GRAVITY)
-        self._world.setTimeStep(self.dt)
-        sleep = self._world.getDeactivationOptions()
-        sleep.mEnabled = False  # a slow platform must never be frozen
-        self._world.setDeactivationOptions(sleep)
-        skeleton = dart.dynamics.Skeleton("platform")
-        if self._planar:
-            joint, body = skeleton.createPlanarJointAndBodyNodePair()
-            joint.setZXPlane()  # generalized coordinates [z, x, θ about +y]
-        else:
-            joint, body = skeleton.createFreeJointAndBodyNodePair()
-        body.setName("platform")
-        body.setInertia(dart.dynamics.Inertia(robot.mass, np.zeros(3), np.array(robot.inertia, dtype=float)))
-        self._world.addSkeleton(skeleton)
-        self._joint = joint
-        self._body = body
+        self._platform = PlatformBody(robot, self.dt)
+        self._world, self._joint, self._body = self._platform.world, self._platform.joint, self._platform.body
         self._tensions = _readonly(np.zeros(robot.m))
         self._snap: _Snapshot | None = None
         self.reset(position, rotation, twist)
@@ -181,29 +220,11 @@ class PlatformSim:
         twist: ArrayLike | None = None,
     ) -> None:
         """Back to step 0 at the given pose and twist (defaults: home pose, at rest)."""
-        p = _vector(self.robot.home_position if position is None else position, 3, "position")
-        R = _rotation(self.robot.home_rotation if rotation is None else rotation)
-        v = _vector(np.zeros(6) if twist is None else twist, 6, "twist")
-        if self._planar:
-            self._set_planar(p, R, v)
-        else:
-            tf = dart.math.Isometry3()
-            tf.set_rotation(R)
-            tf.set_translation(p)
-            world = dart.dynamics.Frame.World()
-            self._joint.setTransform(tf, world)
-            self._joint.setLinearVelocity(v[:3], world, world)
-            self._joint.setAngularVelocity(v[3:], world, world)
-        self._body.clearExternalForces()
+        self._platform.place(*start_pose(self.robot, position, rotation, twist))
         self._world.reset()
         self._snap = None
         self.step_count = 0
         self._tensions = _readonly(np.zeros(self.robot.m))
-
-    def _set_planar(self, p: Array, R: Array, v: Array) -> None:
-        positions, velocities = planar_coordinates(p, R, v)
-        self._joint.setPositions(positions)
-        self._joint.setVelocities(velocities)
 
     def _snapshot(self) -> _Snapshot:
         """The current state's geometry, computed at most once per step (until the next step or reset)."""

@@ -27,10 +27,9 @@ import math
 from dataclasses import dataclass
 
 import numpy as np
-from cdpr.robot import Robot
 from cdpr.rotation import Array
 from cdpr.scenario import SimSpec
-from cdpr_sim.winch import CableForces, CommandKind, Geometry, WinchParams, WinchSim
+from cdpr_sim.winch import CableForces, Geometry, WinchSim
 from numpy.typing import ArrayLike
 
 
@@ -71,22 +70,8 @@ class ElasticSim(WinchSim):
     ``command``: ``"tensions"`` or ``"lengths"``; see :class:`cdpr_sim.winch.WinchSim` for the rest.
     """
 
-    def __init__(
-        self,
-        robot: Robot,
-        dt: float = 1e-3,
-        position: ArrayLike | None = None,
-        rotation: ArrayLike | None = None,
-        twist: ArrayLike | None = None,
-        *,
-        params: ElasticParams | None = None,
-        command: CommandKind = "tensions",
-        winch: WinchParams | None = None,
-        substeps: int | None = None,
-    ) -> None:
-        self.params = params if params is not None else ElasticParams()
-        super().__init__(robot, dt, position, rotation, twist, command=command, winch=winch,
-                         substeps=substeps)
+    params_type = ElasticParams
+    params: ElasticParams
 
     def _law(self, g: Geometry, l0: Array, l0_rate: Array) -> CableForces:
         f = elastic_tensions(g.lengths, g.rates, l0, l0_rate, self.params.EA, self.params.damping)

@@ -40,11 +40,11 @@ from cdpr.catenary import (
     solve_catenary,
     solve_catenary_tension,
 )
-from cdpr.robot import GRAVITY, Robot
+from cdpr.robot import GRAVITY
 from cdpr.rotation import Array
 from cdpr.scenario import SimSpec
 from cdpr_sim.elastic import elastic_tensions, unstretched_lengths
-from cdpr_sim.winch import CableForces, CommandKind, Geometry, WinchParams, WinchSim
+from cdpr_sim.winch import CableForces, Geometry, WinchSim
 from numpy.typing import ArrayLike
 
 G = float(-GRAVITY[2])
@@ -82,25 +82,11 @@ class SagSim(WinchSim):
     ``command``: ``"tensions"`` or ``"lengths"``; see :class:`cdpr_sim.winch.WinchSim` for the rest.
     """
 
-    def __init__(
-        self,
-        robot: Robot,
-        dt: float = 1e-3,
-        position: ArrayLike | None = None,
-        rotation: ArrayLike | None = None,
-        twist: ArrayLike | None = None,
-        *,
-        params: SagParams | None = None,
-        command: CommandKind = "tensions",
-        winch: WinchParams | None = None,
-        substeps: int | None = None,
-    ) -> None:
-        self.params = params if params is not None else SagParams()
-        self.fallbacks = 0  # (sub-)steps where the catenary was not solved and straight cables were used
-        self._warm: tuple[Array, Array] | None = None  # (H, V0) of the last lengths-mode solve
-        self._warm_tension: tuple[Array, Array] | None = None  # (φ, L0) of the last tensions-mode solve
-        super().__init__(robot, dt, position, rotation, twist, command=command, winch=winch,
-                         substeps=substeps)
+    params_type = SagParams
+    params: SagParams
+    fallbacks = 0  # (sub-)steps where the catenary was not solved and straight cables were used
+    _warm: tuple[Array, Array] | None = None  # (H, V0) of the last lengths-mode solve
+    _warm_tension: tuple[Array, Array] | None = None  # (φ, L0) of the last tensions-mode solve
 
     def reset(self, position: ArrayLike | None = None, rotation: ArrayLike | None = None,
               twist: ArrayLike | None = None) -> None:

@@ -79,16 +79,16 @@ from dataclasses import dataclass
 
 import dartpy as dart
 import numpy as np
-from cdpr.robot import GRAVITY, Robot
+from cdpr.robot import Robot
 from cdpr.rotation import Array
 from cdpr_sim.core import (
+    PlatformBody,
     PlatformState,
     StepReport,
+    check_dt,
+    start_pose,
     _readonly,
-    _rotation,
-    _vector,
     clamp_tensions,
-    planar_coordinates,
 )
 from numpy.typing import ArrayLike
 
@@ -132,34 +132,17 @@ class UpsSim:
         *,
         link_mass: float = LINK_MASS,
     ) -> None:
-        if not (np.isfinite(dt) and dt > 0.0):
-            raise ValueError(f"dt must be a positive finite number of seconds (got {dt})")
+        self.dt = check_dt(dt)
         if not (np.isfinite(link_mass) and link_mass > 0.0):
             raise ValueError(f"link_mass must be a positive finite number of kg (got {link_mass})")
         self.robot = robot
-        self.dt = float(dt)
         self.step_count = 0
         self.link_mass = float(link_mass)
         self._a = np.array(robot.frame_points, dtype=float)
         self._b = np.array(robot.platform_points, dtype=float)
-        self._planar = robot.mode == "planar"
-        self._world = dart.simulation.World()
-        self._world.setGravity(GRAVITY)
-        self._world.setTimeStep(self.dt)
-        sleep = self._world.getDeactivationOptions()
-        sleep.mEnabled = False  # a slow platform must never be frozen
-        self._world.setDeactivationOptions(sleep)
-        platform = dart.dynamics.Skeleton("platform")
-        if self._planar:
-            joint, body = platform.createPlanarJointAndBodyNodePair()
-            joint.setZXPlane()  # generalized coordinates [z, x, θ about +y]
-        else:
-            joint, body = platform.createFreeJointAndBodyNodePair()
-        body.setName("platform")
-        body.setInertia(dart.dynamics.Inertia(robot.mass, np.zeros(3), np.array(robot.inertia, dtype=float)))
-        self._world.addSkeleton(platform)
-        self._joint = joint
-        self._body = body
+        self._platform = PlatformBody(robot, self.dt)
+        self._world, self._joint, self._body = self._platform.world, self._platform.joint, self._platform.body
+        body = self._body
         link_inertia = dart.dynamics.Inertia(
             self.link_mass, np.zeros(3), np.eye(3) * 0.4 * self.link_mass * LINK_RADIUS**2
         )
@@ -201,21 +184,7 @@ class UpsSim:
         twist: ArrayLike | None = None,
     ) -> None:
         """Back to step 0 at the given pose and twist (defaults: home pose, at rest), legs by IK."""
-        p = _vector(self.robot.home_position if position is None else position, 3, "position")
-        R = _rotation(self.robot.home_rotation if rotation is None else rotation)
-        v = _vector(np.zeros(6) if twist is None else twist, 6, "twist")
-        world = dart.dynamics.Frame.World()
-        if self._planar:
-            positions, velocities = planar_coordinates(p, R, v)
-            self._joint.setPositions(positions)
-            self._joint.setVelocities(velocities)
-        else:
-            tf = dart.math.Isometry3()
-            tf.set_rotation(R)
-            tf.set_translation(p)
-            self._joint.setTransform(tf, world)
-            self._joint.setLinearVelocity(v[:3], world, world)
-            self._joint.setAngularVelocity(v[3:], world, world)
+        self._platform.place(*start_pose(self.robot, position, rotation, twist))
         # Read the pose back from DART, so that the legs meet the platform exactly where DART has it.
         ends = self._platform_points_world()
         vt, w = self._body.getLinearVelocity(), self._body.getAngularVelocity()
@@ -235,7 +204,6 @@ class UpsSim:
             leg.skeleton.setVelocities(np.linalg.solve(leg.lower.getLinearJacobian(), point_velocity))
             leg.skeleton.clearExternalForces()
             leg.skeleton.clearInternalForces()
-        self._body.clearExternalForces()
         self._world.reset()
         self._snap = None
         self.step_count = 0

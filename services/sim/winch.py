@@ -57,24 +57,23 @@ from __future__ import annotations
 import math
 from abc import ABC, abstractmethod
 from dataclasses import dataclass
-from typing import Literal
+from typing import Any, ClassVar, Literal
 
-import dartpy as dart
 import numpy as np
 from cdpr.dynamics import gravity_wrench, mass_matrix
 from cdpr.kinematics import cable_geometry, inverse_kinematics
-from cdpr.robot import GRAVITY, Robot
+from cdpr.robot import Robot
 from cdpr.rotation import Array, cross_rows
 from cdpr.scenario import Scenario, SimSpec
 from cdpr.tda import make_tda
 from cdpr_sim.core import (
+    PlatformBody,
     PlatformState,
     StepReport,
+    check_dt,
+    start_pose,
     _readonly,
-    _rotation,
-    _vector,
     clamp_tensions,
-    planar_coordinates,
 )
 from numpy.typing import ArrayLike
 
@@ -182,7 +181,10 @@ class WinchSim(ABC):
     to :func:`substeps_for`. Same interface as :class:`~cdpr_sim.core.PlatformSim`: ``state()``,
     ``step(command)``, ``reset(...)``, ``t``, ``step_count``, ``dt``, ``robot``; plus :meth:`encoder_lengths`
     and :meth:`load_cell_tensions` (what the sensors see) and ``winch``/``substeps``/``saturated``.
+    ``params`` are the cable law's parameters (a :attr:`params_type`, its defaults when None).
     """
+
+    params_type: ClassVar[type]  # the cable law's parameter class, set by each subclass
 
     def __init__(
         self,
@@ -192,43 +194,25 @@ class WinchSim(ABC):
         rotation: ArrayLike | None = None,
         twist: ArrayLike | None = None,
         *,
+        params: Any = None,
         command: CommandKind = "tensions",
         winch: WinchParams | None = None,
         substeps: int | None = None,
     ) -> None:
-        if not (np.isfinite(dt) and dt > 0.0):
-            raise ValueError(f"dt must be a positive finite number of seconds (got {dt})")
+        self.dt = check_dt(dt)
+        self.params = params if params is not None else self.params_type()  # the cable law's parameters
         if command not in COMMAND_KINDS:
             raise ValueError(f"command must be one of {', '.join(COMMAND_KINDS)} (got {command!r})")
         if substeps is not None and not (isinstance(substeps, int) and substeps >= 1):
             raise ValueError(f"substeps must be an integer >= 1 (got {substeps!r})")
         self.robot = robot
-        self.dt = float(dt)
         self.command: CommandKind = command
         self.winch = winch if winch is not None else WinchParams()
         self.step_count = 0
         self.saturated = 0  # drive-steps (cable × sub-step) spent at the torque limit since reset
         self._a = np.array(robot.frame_points, dtype=float)
         self._b = np.array(robot.platform_points, dtype=float)
-        self._planar = robot.mode == "planar"
-        self._world = dart.simulation.World()
-        self._world.setGravity(GRAVITY)
-        sleep = self._world.getDeactivationOptions()
-        sleep.mEnabled = False  # a slow platform must never be frozen
-        self._world.setDeactivationOptions(sleep)
-        skeleton = dart.dynamics.Skeleton("platform")
-        if self._planar:
-            joint, body = skeleton.createPlanarJointAndBodyNodePair()
-            joint.setZXPlane()  # generalized coordinates [z, x, θ about +y]
-        else:
-            joint, body = skeleton.createFreeJointAndBodyNodePair()
-        body.setName("platform")
-        body.setInertia(dart.dynamics.Inertia(robot.mass, np.zeros(3), np.array(robot.inertia, dtype=float)))
-        self._world.addSkeleton(skeleton)
-        self._joint = joint
-        self._body = body
-        p0 = _vector(robot.home_position if position is None else position, 3, "position")
-        R0 = _rotation(robot.home_rotation if rotation is None else rotation)
+        p0, R0, v0 = start_pose(robot, position, rotation, twist)
         if command == "tensions":
             self.substeps = 1
         elif substeps is not None:
@@ -238,15 +222,16 @@ class WinchSim(ABC):
             self.substeps = substeps_for(robot, self.dt, self._stiffness(kin.lengths), self.winch,
                                          self._damping(), p0, R0)
         self.h = self.dt / self.substeps
-        self._world.setTimeStep(self.h)
+        self._platform = PlatformBody(robot, self.h)
+        self._world, self._joint, self._body = self._platform.world, self._platform.joint, self._platform.body
         self._hold = make_tda("qp")
-        self.reset(p0, R0, twist)
+        self.reset(p0, R0, v0)
 
     @classmethod
     def from_scenario(cls, scenario: Scenario) -> WinchSim:
         """The sim of a scenario whose ``sim.cable_model`` is this class's :attr:`model`."""
         spec = scenario.spec.sim
-        return cls(  # type: ignore[call-arg]  # the subclasses take their law's ``params``
+        return cls(
             scenario.robot,
             scenario.dt,
             scenario.initial_position,
@@ -291,22 +276,7 @@ class WinchSim(ABC):
         twist: ArrayLike | None = None,
     ) -> None:
         """Back to step 0 at the pose and twist (defaults: home, at rest), the winches holding the weight."""
-        p = _vector(self.robot.home_position if position is None else position, 3, "position")
-        R = _rotation(self.robot.home_rotation if rotation is None else rotation)
-        v = _vector(np.zeros(6) if twist is None else twist, 6, "twist")
-        if self._planar:
-            positions, velocities = planar_coordinates(p, R, v)
-            self._joint.setPositions(positions)
-            self._joint.setVelocities(velocities)
-        else:
-            tf = dart.math.Isometry3()
-            tf.set_rotation(R)
-            tf.set_translation(p)
-            world = dart.dynamics.Frame.World()
-            self._joint.setTransform(tf, world)
-            self._joint.setLinearVelocity(v[:3], world, world)
-            self._joint.setAngularVelocity(v[3:], world, world)
-        self._body.clearExternalForces()
+        self._platform.place(*start_pose(self.robot, position, rotation, twist))
         self._world.reset()
         self.step_count = 0
         self.saturated = 0
