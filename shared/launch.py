@@ -73,6 +73,12 @@ class Children:
     def stop(self, wait_first: float) -> dict[str, int]:
         """Give the children ``wait_first`` seconds to end by themselves, then SIGTERM, then SIGKILL."""
         for sig, grace in ((None, wait_first), (signal.SIGTERM, STOP_GRACE), (signal.SIGKILL, 2.0)):
+            if sig == signal.SIGKILL:
+                for name, p in self.procs.items():
+                    if p.poll() is None:  # where it is stuck, on its stderr (cdpr.service: faulthandler)
+                        log("cdpr", f"{name} did not stop within {STOP_GRACE:g} s of SIGTERM; killing it")
+                        p.send_signal(signal.SIGUSR1)
+                time.sleep(0.2)
             for p in self.procs.values():
                 if sig is not None and p.poll() is None:
                     p.send_signal(sig)

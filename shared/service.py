@@ -20,8 +20,10 @@ Two ways to run a node, one event at a time either way:
 
 from __future__ import annotations
 
+import faulthandler
 import gc
 import os
+import signal
 import threading
 import time
 from collections import deque
@@ -215,6 +217,7 @@ def _sleep_until(wake: threading.Event, deadline: float, precise: bool) -> None:
 def serve(node: Node, conf: zenoh.Config, stop: StopFlag | None = None) -> int:
     """Run ``node`` until it is done; return the process exit code (0 ok, 1 failure, 130/143 signal)."""
     stop = stop or StopFlag().install()
+    faulthandler.register(signal.SIGUSR1, all_threads=True)  # SIGUSR1: every thread's stack on stderr
     parent = int(os.environ[PARENT_ENV]) if os.environ.get(PARENT_ENV, "").isdigit() else None
     try:
         session = open_session(conf, node.name)

@@ -214,3 +214,26 @@ def test_soak_reports_no_lost_or_doubled_step() -> None:
     assert report["rounds_ok"] == report["rounds"] >= 1
     assert report["controller_kills"] >= 1 and report["controller_restarts"] == report["controller_kills"]
     assert report["lost_steps"] == 0 and report["doubled_steps"] == 0 and report["failures"] == []
+
+
+def test_sigusr1_prints_where_a_service_is_and_it_keeps_running(session_id: str) -> None:
+    """What the launcher sends a service that ignored SIGTERM, just before SIGKILL: every thread's stack."""
+    endpoint = f"tcp/127.0.0.1:{free_port()}"
+    sim = subprocess.Popen([*CDPR, "sim", "caroca_15kg", "--session", session_id, "--listen", endpoint],
+                           stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    try:
+        with zenoh.open(zenoh_config("peer", connect=[endpoint])) as s:  # up once its token shows
+            deadline = time.monotonic() + 60
+            while time.monotonic() < deadline and not list(s.liveliness().get(Keys(session_id).alive("sim"))):
+                time.sleep(0.1)
+        sim.send_signal(signal.SIGUSR1)
+        time.sleep(1.0)
+        assert sim.poll() is None  # a dump, not an exit
+        sim.send_signal(signal.SIGTERM)
+        _, err = sim.communicate(timeout=15)
+    finally:
+        if sim.poll() is None:
+            sim.kill()
+    assert sim.returncode == 128 + signal.SIGTERM
+    assert "Current thread" in err or "Thread 0x" in err, err
+    assert 'File "' in err and "serve" in err  # the main thread, inside cdpr.service.serve
