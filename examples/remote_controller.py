@@ -1,10 +1,11 @@
-"""Remote PD + gravity compensation on cdpr.client: python remote_controller.py --connect tcp/HOST:7447"""
+"""Remote PD + gravity compensation on cdpr.runtime.client: python remote_controller.py --connect tcp/HOST:7447"""
 import numpy as np
-from cdpr.client import RemoteController
-from cdpr.dynamics import gravity_wrench, mass_matrix
-from cdpr.kinematics import inverse_kinematics
-from cdpr.rotation import orientation_error, quat_to_matrix
-from cdpr.tda import make_tda
+
+from cdpr.mechanics.dynamics import gravity_wrench, mass_matrix
+from cdpr.mechanics.kinematics import inverse_kinematics
+from cdpr.mechanics.rotation import orientation_error, quat_to_matrix
+from cdpr.mechanics.tda import make_tda
+from cdpr.runtime.client import RemoteController
 
 
 class PDGravity(RemoteController):

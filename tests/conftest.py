@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import contextlib
 import json
 import os
 import socket
@@ -66,10 +67,8 @@ def session_id() -> Iterator[str]:
     yield sid
     left = wait_no_processes(sid, timeout=10.0)
     for pid in left:  # do not leak processes into later tests, but fail this one
-        try:
+        with contextlib.suppress(OSError):
             os.kill(pid, 9)
-        except OSError:
-            pass
     assert not left, f"processes of session {sid} were left behind: {left}"
 
 

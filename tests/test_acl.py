@@ -25,7 +25,7 @@ import pytest
 import zenoh
 
 from cdpr.protocol import Command, Keys, State
-from cdpr.transport import zenoh_config
+from cdpr.runtime.transport import zenoh_config
 from conftest import free_port
 from test_compose import (
     COMPOSE,
@@ -65,7 +65,8 @@ def test_make_certs_writes_a_ca_a_router_certificate_and_identities(tmp_path: Pa
     assert "OK" in openssl("verify", "-CAfile", str(d / "ca.pem"), str(d / "router.pem"))
     text = openssl("x509", "-in", str(d / "router.pem"), "-noout", "-text")
     assert re.search(r"DNS:router, DNS:cdpr\.example\.org, IP Address:127\.0\.0\.1", text)
-    assert "CA:FALSE" in text and "TLS Web Server Authentication" in text
+    assert "CA:FALSE" in text
+    assert "TLS Web Server Authentication" in text
     assert "CA:TRUE" in openssl("x509", "-in", str(d / "ca.pem"), "-noout", "-text")
     # One random password per user, the same in the router's dictionary and in the user's identity.
     lines = (d / "users.txt").read_text().split()
@@ -84,7 +85,8 @@ def test_make_certs_writes_a_ca_a_router_certificate_and_identities(tmp_path: Pa
     assert (d / ".gitignore").read_text().strip() == "*"
     before = (d / "users.txt").read_bytes()
     again = certs(d)
-    assert again.returncode == 0 and "keeping it" in again.stdout
+    assert again.returncode == 0
+    assert "keeping it" in again.stdout
     assert (d / "users.txt").read_bytes() == before
 
 
@@ -268,7 +270,8 @@ def test_secure_session_ignores_an_intruders_commands(session_id: str, tmp_path:
     assert sorted({c.step for c in commands}) == list(range(1000))
     assert max(final) == 1000
     sim_log = procs.log("sim")
-    assert "clamped commands: 0" in sim_log and "dropped" not in sim_log, sim_log
+    assert "clamped commands: 0" in sim_log, sim_log
+    assert "dropped" not in sim_log, sim_log
     assert "finished 1000 steps" in procs.log("clock")
     assert "answered 1000 states up to step 999" in procs.log("controller")
     rrd = tmp_path / "volumes" / "recordings" / f"{session_id}.rrd"

@@ -10,9 +10,9 @@ import numpy as np
 import pytest
 import yaml
 
-from cdpr.bench import QUICK, robot_spec, rt_priority_allowed, scenario_yaml, tda_path
-from cdpr.robot import load_robot
-from cdpr.scenario import load_scenario
+from cdpr.config.robot import load_robot
+from cdpr.config.scenario import load_scenario
+from cdpr.tools.bench import QUICK, robot_spec, rt_priority_allowed, scenario_yaml, tda_path
 from conftest import cdpr, wait_no_processes
 
 pytestmark = pytest.mark.slow
@@ -32,14 +32,18 @@ def bench(tmp_path_factory: pytest.TempPathFactory) -> tuple[dict, str]:
 
 def test_top_level_and_machine(bench: tuple[dict, str]) -> None:
     r, _ = bench
-    assert r["version"] == 1 and r["quick"] is True and r["scenario"] == "caroca_15kg"
+    assert r["version"] == 1
+    assert r["quick"] is True
+    assert r["scenario"] == "caroca_15kg"
     for key in ("plan", "machine", "started", "elapsed_s", "monolithic", "distributed", "zenoh_rtt",
                 "realtime", "tda", "scaling", "targets"):
         assert key in r, key
     m = r["machine"]
-    assert isinstance(m["nproc"], int) and m["nproc"] >= 1
+    assert isinstance(m["nproc"], int)
+    assert m["nproc"] >= 1
     assert isinstance(m["cpu_model"], str)
-    assert len(m["loadavg"]) == 3 and len(m["loadavg_end"]) == 3
+    assert len(m["loadavg"]) == 3
+    assert len(m["loadavg_end"]) == 3
     parts = ["monolithic", "distributed", "zenoh_rtt", "realtime", "tda", "scaling"]
     assert list(m["loadavg_by_part"]) == parts
     assert all(isinstance(x, float) and x >= 0 for x in m["loadavg_by_part"].values())
@@ -50,7 +54,8 @@ def test_top_level_and_machine(bench: tuple[dict, str]) -> None:
 def test_loop_figures(bench: tuple[dict, str]) -> None:
     r, _ = bench
     mono, dist = r["monolithic"], r["distributed"]
-    assert _positive(mono["steps_per_s"]) and mono["steps"] == QUICK.mono_steps
+    assert _positive(mono["steps_per_s"])
+    assert mono["steps"] == QUICK.mono_steps
     assert len(mono["runs_steps_per_s"]) == QUICK.mono_repeats
     assert all(map(_positive, mono["runs_steps_per_s"]))
     assert set(mono["us_per_step"]) == {"sim", "controller", "trajectory", "messages"}
@@ -59,7 +64,8 @@ def test_loop_figures(bench: tuple[dict, str]) -> None:
     for key in ("steps_per_s", "rtf", "ratio_to_monolithic"):
         assert _positive(dist[key]), key
     assert dist["ratio_to_monolithic"] == pytest.approx(dist["steps_per_s"] / mono["steps_per_s"])
-    assert isinstance(dist["state_digest"], str) and len(dist["state_digest"]) == 64
+    assert isinstance(dist["state_digest"], str)
+    assert len(dist["state_digest"]) == 64
     assert dist["cpu_us_per_step"] is None or _positive(dist["cpu_us_per_step"])
     assert all(_positive(v) for v in dist["cpu_us_per_step_by_process"].values())
 
@@ -75,13 +81,16 @@ def test_transport_and_realtime(bench: tuple[dict, str]) -> None:
     assert rt["steps"] == round(QUICK.realtime_duration / 0.001)
     runs = [rt] if rt["rt_priority"] is None else [rt, rt["rt_priority"]]
     if rt["rt_priority"] is not None:  # SCHED_FIFO is permitted here: the second run used it
-        assert rt["rt_priority"]["priority"] == 10 and rt["rt_priority"]["steps"] == rt["steps"]
+        assert rt["rt_priority"]["priority"] == 10
+        assert rt["rt_priority"]["steps"] == rt["steps"]
         assert "realtime_on_time_rt_priority>=0.999" in r["targets"]
     assert rt["rt_priority"] is None or rt_priority_allowed()
     for run in runs:
-        assert 0.0 <= run["on_time_fraction"] <= 1.0 and isinstance(run["late_ticks"], int)
+        assert 0.0 <= run["on_time_fraction"] <= 1.0
+        assert isinstance(run["late_ticks"], int)
         lateness = [run[f"lateness_{p}_ms"] for p in ("p50", "p99", "p999", "max")]
-        assert all(isinstance(x, float) for x in lateness) and lateness == sorted(lateness)
+        assert all(isinstance(x, float) for x in lateness)
+        assert lateness == sorted(lateness)
 
 
 def test_tda_and_scaling(bench: tuple[dict, str]) -> None:
@@ -91,20 +100,23 @@ def test_tda_and_scaling(bench: tuple[dict, str]) -> None:
     for s in sizes:
         assert set(s["methods"]) == {"qp", "closed-form", "improved-closed-form", "continuity", "qp_solver"}
         for stats in s["methods"].values():
-            assert _positive(stats["median_us"]) and stats["p90_us"] >= stats["median_us"]
+            assert _positive(stats["median_us"])
+            assert stats["p90_us"] >= stats["median_us"]
             assert sum(stats["statuses"].values()) > 0
         assert s["methods"]["qp"]["statuses"] == {"optimal": s["calls"]}
         assert 0.0 <= s["qp_max_difference_N"] < 1e-6
     sessions = r["scaling"]["sessions"]
     assert [s["sessions"] for s in sessions] == list(QUICK.session_counts)
     for s in sessions:
-        assert _positive(s["median_steps_per_s"]) and _positive(s["aggregate_steps_per_s"])
+        assert _positive(s["median_steps_per_s"])
+        assert _positive(s["aggregate_steps_per_s"])
         assert s["aggregate_steps_per_s"] >= s["median_steps_per_s"]
     cables = r["scaling"]["cables"]
     assert [c["cables"] for c in cables] == list(QUICK.cable_counts)
     assert all(_positive(c["steps_per_s"]) and c["steps"] > 0 for c in cables)
     for name, t in r["targets"].items():
-        assert isinstance(t["met"], bool) and isinstance(t["value"], (int, float)), name
+        assert isinstance(t["met"], bool), name
+        assert isinstance(t["value"], (int, float)), name
 
 
 def test_table_is_printed(bench: tuple[dict, str]) -> None:
@@ -119,11 +131,13 @@ def test_generated_robots_load_and_hold_the_platform(tmp_path: Path, m: int) -> 
     spec = robot_spec(m)
     (tmp_path / "robot.yaml").write_text(yaml.safe_dump(spec), encoding="utf-8")
     robot = load_robot(tmp_path / "robot.yaml")  # the loader's own checks (rank at home, …)
-    assert robot.m == m and robot.mode == ("point_mass" if m == 4 else "spatial")
+    assert robot.m == m
+    assert robot.mode == ("point_mass" if m == 4 else "spatial")
     scenario = scenario_yaml("robot.yaml", m, 1.0)
     (tmp_path / "scenario.yaml").write_text(yaml.safe_dump(scenario), encoding="utf-8")
     sc = load_scenario(tmp_path / "scenario.yaml")
-    assert sc.robot.m == m and sc.total_steps == 1000
+    assert sc.robot.m == m
+    assert sc.total_steps == 1000
     path = tda_path(sc.robot, 20)
     rows = 3 if m == 4 else 6
     assert all(W.shape == (rows, m) and w.shape == (rows,) for W, w in path)

@@ -3,7 +3,7 @@
 Independent references: Hooke's law for a hanging mass (stretch = m g l0 / EA), the textbook catenary
 ``z = a cosh((x − x0)/a)`` built by hand, a numerical integration of the elastic cable's equilibrium ODE
 (scipy ``solve_ivp``), ``cdpr_sim.core.PlatformSim`` (the ideal cables, for the tension mode),
-``cdpr.dynamics.forward_dynamics`` and ``cdpr.kinematics``. Small test robots are built here.
+``cdpr.mechanics.dynamics.forward_dynamics`` and ``cdpr.mechanics.kinematics``. Small test robots are built here.
 """
 
 from __future__ import annotations
@@ -14,7 +14,12 @@ from pathlib import Path
 import msgpack
 import numpy as np
 import pytest
-from cdpr.catenary import (
+from scipy.integrate import solve_ivp
+
+from cdpr.config.robot import load_robot
+from cdpr.config.scenario import load_scenario
+from cdpr.errors import InputError
+from cdpr.mechanics.catenary import (
     CatenaryError,
     cable_planes,
     end_point,
@@ -22,21 +27,17 @@ from cdpr.catenary import (
     solve_catenary,
     solve_catenary_tension,
 )
-from cdpr.dynamics import forward_dynamics, gravity_wrench
-from cdpr.errors import InputError
-from cdpr.kinematics import inverse_kinematics
+from cdpr.mechanics.dynamics import forward_dynamics, gravity_wrench
+from cdpr.mechanics.kinematics import inverse_kinematics
+from cdpr.mechanics.robot import Robot
+from cdpr.mechanics.rotation import rpy_to_matrix
+from cdpr.mechanics.tda import make_tda
 from cdpr.protocol import Command, ProtocolError
-from cdpr.robot import Robot, load_robot
-from cdpr.rotation import rpy_to_matrix
-from cdpr.scenario import load_scenario
-from cdpr.tda import make_tda
 from cdpr_controller.core import ControllerCore, stretch_compensated_lengths
-from cdpr_sim.core import PlatformSim
+from cdpr_sim.core import PlatformSim, make_sim
 from cdpr_sim.elastic import ElasticParams, ElasticSim, elastic_tensions, unstretched_lengths
-from cdpr_sim.node import make_sim
 from cdpr_sim.sag import SagParams, SagSim
 from cdpr_sim.winch import WinchParams, WinchState, drive_torque, drum_step, substeps_for
-from scipy.integrate import solve_ivp
 
 G = 9.81
 DT = 1e-3

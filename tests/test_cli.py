@@ -7,8 +7,8 @@ import json
 import numpy as np
 import pytest
 
-from cdpr.kinematics import inverse_kinematics
-from cdpr.robot import load_robot, shipped_robots
+from cdpr.config.robot import load_robot, shipped_robots
+from cdpr.mechanics.kinematics import inverse_kinematics
 from conftest import cdpr
 
 
@@ -23,13 +23,14 @@ def test_robots_lists_every_shipped_robot() -> None:
     assert isinstance(out, list)
     assert [r["name"] for r in out] == shipped_robots()
     caroca = _json("robots", "caroca")
-    assert caroca["cables"] == 8 and caroca["mass"] == 150.0
+    assert caroca["cables"] == 8
+    assert caroca["mass"] == 150.0
 
 
 def test_ik_matches_the_library() -> None:
     out = _json("ik", "caroca", "--pose", "0.1", "-0.2", "1.5", "0", "0", "0.1")
     robot = load_robot("caroca")
-    from cdpr.rotation import rpy_to_matrix
+    from cdpr.mechanics.rotation import rpy_to_matrix
 
     k = inverse_kinematics(robot, [0.1, -0.2, 1.5], rpy_to_matrix(0, 0, 0.1))
     assert np.allclose(out["lengths"], k.lengths)
@@ -43,22 +44,26 @@ def test_tda_static_holds_the_platform(method: str) -> None:
     robot = load_robot("caroca")
     f = np.array(out["tensions"])
     W = inverse_kinematics(robot, [0, 0, 1.5]).wrench_matrix
-    assert out["feasible"] is True and out["method"] == method
-    assert np.all(f >= robot.tmin - 1e-9) and np.all(f <= robot.tmax + 1e-9)
+    assert out["feasible"] is True
+    assert out["method"] == method
+    assert np.all(f >= robot.tmin - 1e-9)
+    assert np.all(f <= robot.tmax + 1e-9)
     # W f balances gravity: force (0, 0, m g), no moment about the centre of mass
     assert np.allclose(W @ f, [0, 0, 150 * 9.81, 0, 0, 0], atol=1e-6)
     assert out["residual"] < 1e-6
 
 
 def test_tda_payload_and_wrench_and_limits() -> None:
-    a = _json("tda", "caroca", "--pose", "0", "0", "1.5", "--static", "--payload", "15", "--tmin", "1", "--tmax", "6500")
+    a = _json("tda", "caroca", "--pose", "0", "0", "1.5", "--static", "--payload", "15",
+              "--tmin", "1", "--tmax", "6500")
     b = _json("tda", "caroca", "--pose", "0", "0", "1.5", "--wrench", "0", "0", str(165 * 9.81), "0", "0", "0",
               "--tmin", "1", "--tmax", "6500")
     assert np.allclose(a["tensions"], b["tensions"], atol=1e-6)
     assert min(a["tensions"]) >= 1 - 1e-9
     infeasible = _json("tda", "caroca", "--pose", "0", "0", "1.5", "--static", "--tmax", "60")
     assert infeasible["feasible"] is False
-    assert max(infeasible["tensions"]) <= 60 + 1e-9 and infeasible["residual"] > 1.0
+    assert max(infeasible["tensions"]) <= 60 + 1e-9
+    assert infeasible["residual"] > 1.0
 
 
 @pytest.mark.parametrize(
@@ -83,7 +88,8 @@ def test_bad_arguments_give_one_line_and_exit_2(args: tuple[str, ...], needle: s
     assert proc.returncode == 2, proc.stderr
     lines = proc.stderr.strip().splitlines()
     assert len(lines) == 1, proc.stderr
-    assert needle in lines[0] and "Traceback" not in proc.stderr
+    assert needle in lines[0]
+    assert "Traceback" not in proc.stderr
 
 
 def test_python_dash_m_is_the_same_command() -> None:
@@ -91,4 +97,5 @@ def test_python_dash_m_is_the_same_command() -> None:
     import sys
 
     proc = subprocess.run([sys.executable, "-m", "cdpr", "--help"], capture_output=True, text=True, check=True)
-    assert "run" in proc.stdout and "tda" in proc.stdout
+    assert "run" in proc.stdout
+    assert "tda" in proc.stdout

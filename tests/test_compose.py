@@ -202,13 +202,15 @@ def test_dockerfile_builds_one_image_for_every_service() -> None:
     assert lines[0] == "FROM python:3.11-slim"
     assert any(ln.startswith("RUN pip install .") for ln in lines)
     assert 'ENTRYPOINT ["cdpr"]' in lines
-    assert "WORKDIR /cdpr" in lines and "USER cdpr" in lines
+    assert "WORKDIR /cdpr" in lines
+    assert "USER cdpr" in lines
     copied = [ln.split()[1] for ln in lines if ln.startswith("COPY")]
     assert copied == ["pyproject.toml", "shared", "services"]
     for path in ("pyproject.toml", "README.md", "shared", "services"):
         assert (ROOT / path).exists()
     ignore = (DOCKER / "Dockerfile.dockerignore").read_text().split()
-    assert "**" in ignore and {"!shared/**", "!services/**", "!pyproject.toml"} <= set(ignore)
+    assert "**" in ignore
+    assert {"!shared/**", "!services/**", "!pyproject.toml"} <= set(ignore)
 
 
 def test_compose_services_are_complete() -> None:
@@ -246,7 +248,8 @@ def test_compose_services_are_complete() -> None:
     assert over["router"]["ports"] == ["9000:7447"]
     for name in (*SESSION_SERVICES, "controller"):
         cmd = command_of(over[name])
-        assert cmd[1] == "caroca_1kg" and cmd[-2:] == ["--duration", "0.5"]
+        assert cmd[1] == "caroca_1kg"
+        assert cmd[-2:] == ["--duration", "0.5"]
         assert cmd[cmd.index("--session") + 1] == "s1"
 
 
@@ -316,5 +319,6 @@ def test_compose_commands_run_a_session_with_a_remote_controller(session_id: str
     assert "answered 500 states up to step 499" in procs.log("remote"), procs.report()
     assert "clamped commands: 0" in procs.log("sim")
     rrd = tmp_path / "volumes" / "recordings" / f"{session_id}.rrd"
-    assert rrd.read_bytes()[:4] == b"RRF2" and rrd.stat().st_size > 10_000
+    assert rrd.read_bytes()[:4] == b"RRF2"
+    assert rrd.stat().st_size > 10_000
     print(f"compose session through the router: {clock_rate(procs.log('clock')):.0f} steps/s")

@@ -5,12 +5,12 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from cdpr.control import Gains, commanded_acceleration, controlled_rows, feedback_linearisation
-from cdpr.dynamics import forward_dynamics
-from cdpr.kinematics import inverse_kinematics
-from cdpr.robot import load_robot
-from cdpr.rotation import rotvec_to_matrix
-from cdpr.tda import make_tda
+from cdpr.config.robot import load_robot
+from cdpr.mechanics.control import Gains, commanded_acceleration, controlled_rows, feedback_linearisation
+from cdpr.mechanics.dynamics import forward_dynamics
+from cdpr.mechanics.kinematics import inverse_kinematics
+from cdpr.mechanics.rotation import rotvec_to_matrix
+from cdpr.mechanics.tda import make_tda
 
 G = 9.81
 
@@ -63,7 +63,7 @@ def test_the_law_produces_the_commanded_acceleration(variant: str) -> None:
     p = np.array([0.2, -0.1, 1.3])
     R = rotvec_to_matrix([0.02, -0.01, 0.03])
     twist = rng.normal(scale=0.05, size=6)
-    pd, Rd = p + [0.002, -0.001, 0.003], np.eye(3)
+    pd, Rd = p + np.array([0.002, -0.001, 0.003]), np.eye(3)
     twist_d, accel_d = twist + rng.normal(scale=0.005, size=6), rng.normal(scale=0.2, size=6)
     gains = Gains.of(100.0, 20.0)
     rows = list(controlled_rows(robot, variant))  # type: ignore[arg-type]

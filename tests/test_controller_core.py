@@ -6,13 +6,12 @@ from dataclasses import replace
 
 import numpy as np
 
-from cdpr.control import feedback_linearisation
-from cdpr.kinematics import inverse_kinematics
-from cdpr.rotation import quat_to_matrix
-from cdpr.scenario import load_scenario
+from cdpr.config.scenario import load_scenario
+from cdpr.mechanics.control import feedback_linearisation
+from cdpr.mechanics.kinematics import inverse_kinematics
+from cdpr.mechanics.rotation import quat_to_matrix
 from cdpr_controller.core import ControllerCore
-from cdpr_sim.core import PlatformSim
-from cdpr_sim.node import state_message
+from cdpr_sim.core import PlatformSim, state_message
 from cdpr_trajectory.core import setpoint_at
 
 
@@ -20,7 +19,7 @@ def test_the_tensions_produce_the_law_wrench_plus_damping_compensation() -> None
     sc = load_scenario("caroca_15kg")
     core = ControllerCore.from_scenario(sc)
     setpoint = setpoint_at(sc.trajectory, 5000, sc.dt)
-    twist = np.array(setpoint.twist) + [0.001, -0.0005, 0.002, 0.0001, 0.0, -0.0002]
+    twist = np.array(setpoint.twist) + np.array([0.001, -0.0005, 0.002, 0.0001, 0.0, -0.0002])
     sim = PlatformSim(sc.robot, sc.dt, np.array(setpoint.pose[:3]) + 1e-4, np.eye(3), twist=twist)
     state = state_message(sim.state(), 0)
     result = core.step(state, setpoint)
@@ -57,7 +56,8 @@ def test_warm_up_leaves_the_answers_unchanged() -> None:
         for k in range(30):
             state, setpoint = state_message(sim.state(), 0), setpoint_at(sc.trajectory, k, sc.dt)
             a, b = fresh.step(state, setpoint), warmed.step(state, setpoint)
-            assert np.array_equal(a.tensions, b.tensions) and a.status == b.status
+            assert np.array_equal(a.tensions, b.tensions)
+            assert a.status == b.status
             sim.step(a.tensions)
 
 
@@ -74,5 +74,6 @@ def test_a_zero_quaternion_is_an_invalid_input_not_a_crash() -> None:
         (replace(good_state, pose=(*good_state.pose[:3], 1e-200, 0.0, 0.0, 0.0)), good_sp),  # squares underflow
     ):
         result = core.step(state, setpoint)
-        assert result.status == "invalid_input" and not result.feasible
+        assert result.status == "invalid_input"
+        assert not result.feasible
         assert np.isfinite(result.tensions).all()  # the last feasible tensions, sent instead

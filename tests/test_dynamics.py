@@ -11,7 +11,9 @@ import math
 import numpy as np
 import pytest
 
-from cdpr.dynamics import (
+from cdpr.config.robot import load_robot, shipped_robots
+from cdpr.errors import InputError
+from cdpr.mechanics.dynamics import (
     coriolis_wrench,
     forward_dynamics,
     gravity_wrench,
@@ -19,10 +21,9 @@ from cdpr.dynamics import (
     required_wrench,
     world_inertia,
 )
-from cdpr.errors import InputError
-from cdpr.kinematics import inverse_kinematics
-from cdpr.robot import Robot, Shape, load_robot, shipped_robots
-from cdpr.rotation import Array, rotvec_to_matrix
+from cdpr.mechanics.kinematics import inverse_kinematics
+from cdpr.mechanics.robot import Robot, Shape
+from cdpr.mechanics.rotation import Array, rotvec_to_matrix
 
 G = 9.81
 NAMES = shipped_robots()

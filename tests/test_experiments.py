@@ -7,20 +7,22 @@ from pathlib import Path
 
 import pytest
 
-from cdpr.analysis import tension_change_bound
-from cdpr.experiments import meets_targets
-from cdpr.scenario import load_scenario
+from cdpr.config.scenario import load_scenario
+from cdpr.tools.analysis import tension_change_bound
+from cdpr.tools.experiments import meets_targets
 from conftest import cdpr, last_json_line
 
 pytestmark = pytest.mark.slow
 
 
-@pytest.mark.parametrize("scenario", ["caroca_1kg_continuity", "caroca_15kg_continuity", "caroca_15kg_scurve_continuity"])
+@pytest.mark.parametrize("scenario",
+                         ["caroca_1kg_continuity", "caroca_15kg_continuity", "caroca_15kg_scurve_continuity"])
 def test_paper_experiment_meets_the_targets(scenario: str, session_id: str) -> None:
     proc = cdpr("run", scenario, "--session", session_id, "--quiet", timeout=600, check=True)
     s = last_json_line(proc.stdout)
     sc = load_scenario(scenario)
-    assert s["exit_ok"] is True and s["steps"] == sc.total_steps
+    assert s["exit_ok"] is True
+    assert s["steps"] == sc.total_steps
     ok = meets_targets(s, sc.robot.tmin, sc.robot.tmax)
     assert all(ok.values()), (ok, s)
     assert s["rms_position_error"] <= 1e-3
@@ -42,9 +44,11 @@ def test_experiments_command_writes_the_page(tmp_path: Path) -> None:
                 "--only", "caroca_15kg", "--only", "caroca_15kg_ups", timeout=600)
     assert proc.returncode == 0, proc.stderr[-2000:]
     out = last_json_line(proc.stdout)
-    assert out["runs"] == 2 and out["targets_missed"] == []
+    assert out["runs"] == 2
+    assert out["targets_missed"] == []
     page = (docs / "results.md").read_text()
-    assert "| `caroca_15kg` |" in page and "| `caroca_15kg_ups` |" in page
+    assert "| `caroca_15kg` |" in page
+    assert "| `caroca_15kg_ups` |" in page
     assert "Largest platform position difference" in page
     for name in ("caroca_15kg", "caroca_15kg_ups"):
         assert (docs / "results" / name / "tracking.png").stat().st_size > 10_000

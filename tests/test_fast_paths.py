@@ -13,14 +13,14 @@ import pytest
 import zenoh
 from scipy.spatial.transform import Rotation
 
-from cdpr.control import FeedbackLaw, Gains, controlled_rows, feedback_linearisation
-from cdpr.kinematics import WrenchMatrix, inverse_kinematics
+from cdpr.config.robot import load_robot, shipped_robots
+from cdpr.mechanics.control import FeedbackLaw, Gains, controlled_rows, feedback_linearisation
+from cdpr.mechanics.kinematics import WrenchMatrix, inverse_kinematics
+from cdpr.mechanics.rotation import matrix_to_quat, quat_to_matrix
+from cdpr.mechanics.tda import make_tda
 from cdpr.protocol import Command, ProtocolError, State
-from cdpr.robot import load_robot, shipped_robots
-from cdpr.rotation import matrix_to_quat, quat_to_matrix
-from cdpr.service import Node, _Dispatcher
-from cdpr.tda import make_tda
-from cdpr.transport import Event, Inbox, StopFlag, zenoh_config
+from cdpr.runtime.service import Node, _Dispatcher
+from cdpr.runtime.transport import Event, Inbox, StopFlag, zenoh_config
 from cdpr_sim.core import clamp_tensions
 from conftest import free_port
 
@@ -79,7 +79,8 @@ def test_matrix_to_quat_against_scipy_on_every_branch() -> None:
         want = rot.as_quat()  # [x, y, z, w]
         want = want if want[3] > 0 or (want[3] == 0 and got @ want > 0) else -want
         np.testing.assert_allclose(got, want, rtol=0, atol=1e-14)
-        assert got[3] >= 0.0 and abs(np.linalg.norm(got) - 1.0) < 1e-15
+        assert got[3] >= 0.0
+        assert abs(np.linalg.norm(got) - 1.0) < 1e-15
 
 
 def test_clamp_tensions_fast_path_matches_the_formula() -> None:
@@ -130,9 +131,11 @@ def test_tda_scalar_bounds_fast_path_equals_array_bounds() -> None:
         w = np.r_[0.0, 0.0, 15.0 * 9.81, 0.0, 0.0, 0.0] + rng.uniform(-5.0, 5.0, 6)
         a = fast.solve(W, w, 1.0, 6500.0)
         b = slow.solve(W, w, np.full(8, 1.0), np.full(8, 6500.0))
-        assert np.array_equal(a.tensions, b.tensions) and a.status == b.status == "optimal"
+        assert np.array_equal(a.tensions, b.tensions)
+        assert a.status == b.status == "optimal"
     bad = fast.solve(np.full((6, 8), np.nan), np.zeros(6), 1.0, 6500.0)
-    assert bad.status == "invalid_input" and not bad.feasible
+    assert bad.status == "invalid_input"
+    assert not bad.feasible
     with pytest.raises(ValueError, match="tmin must not exceed tmax"):
         fast.solve(W, w, 10.0, 1.0)
     with pytest.raises(ValueError, match="finite"):
@@ -167,13 +170,15 @@ def test_dispatcher_defers_reentrant_events_and_keeps_the_first_error() -> None:
     node.deliver = dispatch
     dispatch(Event("x", b"", "first", 0.0))
     assert node.seen == ["first", "after nested", "nested"]  # not nested inside the first handler
-    assert node.idles == 1 and not wake.is_set()
+    assert node.idles == 1
+    assert not wake.is_set()
     node.done = True
     dispatch(Event("x", b"", "last", 0.0))
     assert wake.is_set()  # the main thread must notice the end
     node.done = False
     dispatch(Event("x", b"", "boom", 0.0))
-    assert isinstance(dispatch.error, RuntimeError) and dispatch.closed
+    assert isinstance(dispatch.error, RuntimeError)
+    assert dispatch.closed
     dispatch(Event("x", b"", "ignored", 0.0))
     assert "ignored" not in node.seen
 
@@ -192,7 +197,8 @@ def test_dispatcher_handles_what_idle_published_and_nothing_after_a_signal() -> 
     dispatch = _Dispatcher(node, node.handle, wake, stop)
     node.deliver = dispatch
     dispatch(Event("x", b"", "a", 0.0))
-    assert node.seen == ["a", "from idle"] and node.idles == 2  # in the same call, not the next one
+    assert node.seen == ["a", "from idle"]
+    assert node.idles == 2
     woken = threading.Event()
     stop.on_set(woken.set)
     stop.set()  # what SIGINT/SIGTERM do

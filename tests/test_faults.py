@@ -16,8 +16,8 @@ import zenoh
 
 from cdpr import recording
 from cdpr.protocol import Keys
-from cdpr.soak import SessionWatcher
-from cdpr.transport import zenoh_config
+from cdpr.runtime.transport import zenoh_config
+from cdpr.tools.soak import SessionWatcher
 from conftest import CDPR, free_port, last_json_line, processes_mentioning, wait_no_processes
 
 pytestmark = pytest.mark.slow
@@ -57,7 +57,8 @@ def test_controller_killed_and_replaced_mid_run(session_id: str) -> None:
             first.send_signal(signal.SIGKILL)
             first.wait(timeout=10)
             watch.wait(lambda: watch.status is not None and watch.status.state == "paused", 10, "the pause")
-            assert watch.status is not None and "controller" in watch.status.missing
+            assert watch.status is not None
+            assert "controller" in watch.status.missing
             paused_at = max(watch.states)
             time.sleep(1.0)  # no drift while paused
             assert max(watch.states) <= paused_at + 1
@@ -99,7 +100,8 @@ def test_sim_restart_aborts_the_session(session_id: str) -> None:
             sims[0].wait(timeout=10)
             sims.append(subprocess.Popen(sim_cmd, stderr=subprocess.DEVNULL, text=True))
             watch.wait(lambda: watch.status is not None and watch.status.state == "aborted", 60, "the abort")
-            assert watch.status is not None and "sim" in watch.status.reason
+            assert watch.status is not None
+            assert "sim" in watch.status.reason
             out, err = up.communicate(timeout=60)
             sims[1].wait(timeout=30)
     finally:
@@ -116,8 +118,8 @@ def _child_pid(session_id: str, service: str, timeout: float = 60.0) -> int:
     deadline = time.monotonic() + timeout
     while time.monotonic() < deadline:
         for pid in processes_mentioning(session_id):
-            cmdline = open(f"/proc/{pid}/cmdline", "rb").read().split(b"\0")
-            if b"cdpr" in cmdline and service.encode() in cmdline and b"-m" in cmdline:
+            cmdline = Path(f"/proc/{pid}/cmdline").read_bytes().split(b"\0")
+            if b"cdpr.runtime" in cmdline and service.encode() in cmdline and b"-m" in cmdline:
                 return pid
         time.sleep(0.05)
     raise AssertionError(f"no {service} process for session {session_id}")
@@ -194,7 +196,9 @@ def test_unreachable_endpoint_and_port_in_use_exit_2() -> None:
     )
     assert proc.returncode == 2
     lines = proc.stderr.strip().splitlines()
-    assert len(lines) == 1 and "tcp/127.0.0.1:1" in lines[0] and "Traceback" not in proc.stderr
+    assert len(lines) == 1
+    assert "tcp/127.0.0.1:1" in lines[0]
+    assert "Traceback" not in proc.stderr
     with socket.socket() as busy:
         busy.bind(("127.0.0.1", 0))
         busy.listen()
@@ -203,7 +207,8 @@ def test_unreachable_endpoint_and_port_in_use_exit_2() -> None:
                               capture_output=True, text=True, timeout=60)
     assert proc.returncode == 2
     lines = proc.stderr.strip().splitlines()
-    assert len(lines) == 1 and f"tcp/127.0.0.1:{port} is already in use" in lines[0]
+    assert len(lines) == 1
+    assert f"tcp/127.0.0.1:{port} is already in use" in lines[0]
 
 
 def test_soak_reports_no_lost_or_doubled_step() -> None:
@@ -212,8 +217,11 @@ def test_soak_reports_no_lost_or_doubled_step() -> None:
     report = last_json_line(proc.stdout)
     assert proc.returncode == 0, proc.stderr[-2000:]
     assert report["rounds_ok"] == report["rounds"] >= 1
-    assert report["controller_kills"] >= 1 and report["controller_restarts"] == report["controller_kills"]
-    assert report["lost_steps"] == 0 and report["doubled_steps"] == 0 and report["failures"] == []
+    assert report["controller_kills"] >= 1
+    assert report["controller_restarts"] == report["controller_kills"]
+    assert report["lost_steps"] == 0
+    assert report["doubled_steps"] == 0
+    assert report["failures"] == []
 
 
 def test_sigusr1_prints_where_a_service_is_and_it_keeps_running(session_id: str) -> None:
@@ -236,4 +244,5 @@ def test_sigusr1_prints_where_a_service_is_and_it_keeps_running(session_id: str)
             sim.kill()
     assert sim.returncode == 128 + signal.SIGTERM
     assert "Current thread" in err or "Thread 0x" in err, err
-    assert 'File "' in err and "serve" in err  # the main thread, inside cdpr.service.serve
+    assert 'File "' in err
+    assert "serve" in err

@@ -12,7 +12,7 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 from cdpr.protocol import Keys, Status
-from cdpr.transport import zenoh_config
+from cdpr.runtime.transport import zenoh_config
 from conftest import CDPR, free_port, last_json_line
 
 pytestmark = pytest.mark.slow
@@ -75,7 +75,8 @@ def test_random_payloads_do_not_stop_the_sim(session_id: str) -> None:
             status = z.declare_subscriber(k.status)
             deadline = time.monotonic() + 60
             while (sample := status.try_recv()) is None or Status.decode(sample.payload.to_bytes()).state != "running":
-                assert time.monotonic() < deadline and up.poll() is None
+                assert time.monotonic() < deadline
+                assert up.poll() is None
                 time.sleep(0.005)
             command, tick = z.declare_publisher(k.command), z.declare_publisher(k.tick)
             # Any payload on the command key; undecodable noise on the tick key (a *valid* tick from

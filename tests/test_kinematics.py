@@ -1,6 +1,6 @@
 """Cable kinematics (seed paper eq. 2–4): hand-computed cases, J by finite differences, W = −Jᵀ, FK ∘ IK.
 
-Conventions under test (shared/kinematics.py): l_i = a_i − t − R b_i, d_i = l_i / ‖l_i‖, l̇ = J v with the
+Conventions under test (shared/cdpr/mechanics/kinematics.py): l_i = a_i − t − R b_i, d_i = l_i / ‖l_i‖, l̇ = J v with the
 world-frame twist v = [ṫ; ω], and W f = [Σ f_i d_i; Σ (R b_i) × f_i d_i] with W = −Jᵀ.
 """
 
@@ -11,9 +11,10 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from cdpr.kinematics import cable_length_rates, forward_kinematics, inverse_kinematics
-from cdpr.robot import Robot, Shape, load_robot, shipped_robots
-from cdpr.rotation import Array, rotvec_to_matrix, rpy_to_matrix
+from cdpr.config.robot import load_robot, shipped_robots
+from cdpr.mechanics.kinematics import cable_length_rates, forward_kinematics, inverse_kinematics
+from cdpr.mechanics.robot import Robot, Shape
+from cdpr.mechanics.rotation import Array, rotvec_to_matrix, rpy_to_matrix
 
 TEST_ROBOTS = Path(__file__).parent / "robots" / "valid"
 

@@ -17,9 +17,9 @@ import msgpack
 import pytest
 import zenoh
 
-from cdpr.bench import rt_priority_allowed
 from cdpr.protocol import Command, Keys, Status
-from cdpr.transport import zenoh_config
+from cdpr.runtime.transport import zenoh_config
+from cdpr.tools.bench import rt_priority_allowed
 from conftest import CDPR, cdpr, free_port, last_json_line, processes_mentioning, wait_no_processes
 
 pytestmark = pytest.mark.slow
@@ -36,7 +36,8 @@ def test_full_15kg_run_tracks_the_trajectory(session_id: str) -> None:
     assert 1.0 <= s["tension_min"] <= s["tension_max"] <= 6500.0
     assert s["clamped_commands"] == 0
     assert s["exit_codes"] == {"clock": 0, "sim": 0, "trajectory": 0, "controller": 0}
-    assert s["rate"] > 0 and s["rtf"] > 0
+    assert s["rate"] > 0
+    assert s["rtf"] > 0
 
 
 def test_fast_runs_are_bit_identical(session_id: str) -> None:
@@ -170,7 +171,9 @@ def test_run_rejects_an_unknown_scenario() -> None:
     proc = cdpr("run", "no_such_scenario")
     assert proc.returncode == 2
     lines = proc.stderr.strip().splitlines()
-    assert len(lines) == 1 and "no_such_scenario" in lines[0] and "Traceback" not in proc.stderr
+    assert len(lines) == 1
+    assert "no_such_scenario" in lines[0]
+    assert "Traceback" not in proc.stderr
     assert sys.executable  # the test ran with the project's interpreter
 
 
@@ -204,7 +207,9 @@ def test_rt_priority_puts_the_loop_services_under_sched_fifo(session_id: str, tm
     assert all(policies[role] == os.SCHED_FIFO for role in loop), policies
     assert policies["recorder"] == os.SCHED_OTHER  # writes in bursts: keeps the normal scheduler
     s = last_json_line(out)
-    assert s["exit_ok"] and s["steps"] == 3000 and 0.0 <= s["on_time_fraction"] <= 1.0
+    assert s["exit_ok"]
+    assert s["steps"] == 3000
+    assert 0.0 <= s["on_time_fraction"] <= 1.0
 
 
 @pytest.mark.skipif(not (shutil.which("setpriv") and shutil.which("prlimit")), reason="needs setpriv and prlimit")
@@ -216,4 +221,6 @@ def test_rt_priority_not_permitted_is_one_line_and_exit_2() -> None:
     )
     assert proc.returncode == 2, proc.stderr
     lines = proc.stderr.strip().splitlines()
-    assert len(lines) == 1 and "--rt-priority" in lines[0] and "CAP_SYS_NICE" in lines[0], proc.stderr
+    assert len(lines) == 1, proc.stderr
+    assert "--rt-priority" in lines[0], proc.stderr
+    assert "CAP_SYS_NICE" in lines[0], proc.stderr

@@ -8,10 +8,15 @@ from pathlib import Path
 
 import msgpack
 import pytest
+import yaml
 
-from cdpr.protocol import WIRING, Command, Keys, ProtocolError, Setpoint, State, Status, Tick
+from cdpr.protocol import Command, Keys, ProtocolError, Setpoint, State, Status, Tick, wiring
+from cdpr.protocol.wiring import TOPICS, WIRING
+from cdpr.runtime.client import _ControllerNode
+from cdpr.runtime.registry import node_class, node_names
 
-DOC = (Path(__file__).resolve().parents[1] / "docs" / "protocol.md").read_text(encoding="utf-8")
+ROOT = Path(__file__).resolve().parents[1]
+DOC = (ROOT / "docs" / "protocol.md").read_text(encoding="utf-8")
 
 
 def test_every_key_is_documented() -> None:
@@ -20,29 +25,47 @@ def test_every_key_is_documented() -> None:
         assert f"`{doc_key}`" in DOC, f"{name} key {doc_key} missing from docs/protocol.md"
 
 
+def _names(cell: str) -> set[str]:
+    return {w for w in re.findall(r"[a-z]+", cell) if w in WIRING}
+
+
 def test_wiring_table_matches_the_document() -> None:
     rows = {m.group(1): m for m in re.finditer(r"^\| (\w+)\s*\| `[^`]+`\s*\| ([^|]+)\| ([^|]+)\|$", DOC, re.M)}
-    for name, wiring in WIRING.items():
-        assert name in rows, f"{name} missing from the key table"
-        publishers = rows[name].group(2)
-        for p in wiring["publishers"]:
-            assert p in publishers, (name, p)
-        subscribers = rows[name].group(3)
-        for s in wiring["subscribers"]:
-            assert s in subscribers or "every service" in subscribers
+    assert set(rows) == set(TOPICS)
+    for topic in TOPICS:
+        assert _names(rows[topic].group(2)) == set(wiring.publishers(topic)), topic
+        if topic != "alive":  # the clock watches the tokens with a liveliness subscriber, not a topic
+            assert _names(rows[topic].group(3)) == set(wiring.subscribers(topic)), topic
 
 
-def test_services_wire_as_the_table_says() -> None:
-    """Each service's node subscribes and publishes exactly the keys WIRING gives it."""
-    root = Path(__file__).resolve().parents[1] / "services"
-    for service in ("sim", "trajectory", "controller", "clock", "recorder"):
-        code = (root / service / "node.py").read_text(encoding="utf-8")
-        subscribed = {k.removesuffix("_all") for k in re.findall(r"inbox\.subscribe\(session, self\.keys\.(\w+)", code)}
-        published = set(re.findall(r"declare_publisher\(self\.keys\.(\w+)", code))
-        want_sub = {k for k, w in WIRING.items() if service in w["subscribers"]} - {"status"}
-        want_pub = {k for k, w in WIRING.items() if service in w["publishers"]} - {"info", "stats"}
-        assert subscribed == want_sub, service
-        assert published == want_pub, service
+def test_every_registered_node_is_wired_as_the_table_says() -> None:
+    """Each registered node lists exactly the topics of its row; the SDK's controller those of the controller."""
+    assert set(node_names()) == set(WIRING)
+    for name in node_names():
+        cls = node_class(name)
+        assert cls.name == name
+        wiring.check_node(name, cls.subscribes, cls.publishes)
+    wiring.check_node("controller", _ControllerNode.subscribes, _ControllerNode.publishes)
+
+
+def test_a_node_off_the_table_is_refused() -> None:
+    with pytest.raises(ValueError, match=r"publishes \['command', 'state'\], the wiring table lists \['command'\]"):
+        wiring.check_node("controller", ("state", "setpoint"), ("command", "state"))
+    with pytest.raises(ValueError, match="subscribes"):
+        wiring.check_node("sim", ("tick",), ("state", "sensors"))
+    with pytest.raises(ValueError, match="not in the wiring table"):
+        wiring.check_node("estimator", (), ())
+
+
+def test_compose_runs_the_nodes_of_the_table() -> None:
+    """Every service of docker/compose.yaml is the router or a node of the table, started by its name."""
+    compose = yaml.safe_load((ROOT / "docker" / "compose.yaml").read_text(encoding="utf-8"))
+    nodes = {name: svc for name, svc in compose["services"].items() if name != "router"}
+    assert set(nodes) <= set(WIRING)
+    assert {"clock", "sim", "trajectory", "controller"} <= set(nodes)
+    for name, svc in nodes.items():
+        command = svc["command"] if isinstance(svc["command"], str) else " ".join(svc["command"])
+        assert command.split()[0] == name, (name, command)
 
 
 @pytest.mark.parametrize(

@@ -20,15 +20,16 @@ from typing import Any
 import numpy as np
 import pyarrow as pa
 import pytest
+from rerun.chunk import RrdReader
+
 from cdpr import recording
-from cdpr.kinematics import inverse_kinematics
-from cdpr.metrics import RunMetrics
+from cdpr.config.robot import load_robot, shipped_robots
+from cdpr.mechanics.kinematics import inverse_kinematics
+from cdpr.mechanics.rotation import matrix_to_quat, orientation_error, quat_to_matrix, rotvec_to_matrix
 from cdpr.protocol import Command, Setpoint, State, Status
-from cdpr.robot import load_robot, shipped_robots
-from cdpr.rotation import matrix_to_quat, orientation_error, quat_to_matrix, rotvec_to_matrix
+from cdpr.tools.metrics import RunMetrics
 from cdpr_recorder.core import Params, RecorderCore, flatten_stats, orientation_errors
 from conftest import CDPR, cdpr, last_json_line, processes_mentioning, wait_no_processes
-from rerun.chunk import RrdReader
 
 # --------------------------------------------------------------------------------------------------
 # Pure helpers
@@ -234,7 +235,7 @@ def test_recording_id_is_unique_per_run_unless_forced() -> None:
 
 
 # --------------------------------------------------------------------------------------------------
-# Reading recordings back, independently of cdpr.report
+# Reading recordings back, independently of cdpr.tools.report
 
 
 def _scalars(path: Path, entity: str) -> tuple[np.ndarray, np.ndarray, np.ndarray]:

@@ -1,10 +1,11 @@
-"""Remote controllers: the cdpr.client SDK, its two examples, and a router restarted under a session."""
+"""Remote controllers: the cdpr.runtime.client SDK, its two examples, and a router restarted under a session."""
 
 from __future__ import annotations
 
 import ast
 import queue
 import signal
+import subprocess
 import sys
 import threading
 import time
@@ -16,12 +17,17 @@ import numpy as np
 import pytest
 import zenoh
 
-from cdpr.client import FunctionController, RemoteController, SessionInfo, controller, robot_from_summary
-from cdpr.kinematics import inverse_kinematics
+from cdpr.config.scenario import load_scenario
+from cdpr.mechanics.kinematics import inverse_kinematics
+from cdpr.mechanics.rotation import rpy_to_matrix
 from cdpr.protocol import Command, Keys, ProtocolError, Setpoint, State, Status
-from cdpr.rotation import rpy_to_matrix
-from cdpr.scenario import load_scenario
-from cdpr.transport import StopFlag, zenoh_config
+from cdpr.protocol.session import SessionInfo, encode_session_info, robot_from_summary, session_info
+from cdpr.runtime.client import (
+    FunctionController,
+    RemoteController,
+    controller,
+)
+from cdpr.runtime.transport import StopFlag, zenoh_config
 from conftest import CDPR, free_port, last_json_line
 from test_compose import Processes
 
@@ -31,7 +37,7 @@ WAIT = 20.0  # seconds any single expected message may take (a bound, never a me
 
 
 def info_payload(name: str = "caroca_15kg") -> bytes:
-    return msgpack.packb({"v": 1, **load_scenario(name).info()}, use_bin_type=True)
+    return encode_session_info(load_scenario(name))
 
 
 # --------------------------------------------------------------------------------------------------
@@ -44,7 +50,9 @@ def test_session_info_rebuilds_the_scenario_robot() -> None:
     r = info.robot
     assert (info.scenario, info.dt, info.total_steps) == ("caroca_15kg", 0.001, 11000)
     assert (info.variant, info.tda) == ("6dof", "qp")
-    assert r.mass == 15.0 and r.m == 8 and (r.tmin, r.tmax) == (1.0, 6500.0)
+    assert r.mass == 15.0
+    assert r.m == 8
+    assert (r.tmin, r.tmax) == (1.0, 6500.0)
     np.testing.assert_array_equal(r.frame_points, sc.robot.frame_points)
     np.testing.assert_array_equal(r.platform_points, sc.robot.platform_points)
     np.testing.assert_array_equal(r.inertia, sc.robot.inertia)
@@ -58,11 +66,12 @@ def test_session_info_rebuilds_the_scenario_robot() -> None:
 
 def test_session_info_of_a_3dof_point_mass_robot() -> None:
     sc = load_scenario("caroca_1kg")
-    msg = {"v": 1, **sc.info()}
+    msg = {"v": 1, **session_info(sc)}
     msg["robot"] = load_scenario("caroca_1kg").robot.replace(
         mode="point_mass", platform_points=np.zeros((8, 3))).summary()
     info = SessionInfo.from_payload(msgpack.packb(msg))
-    assert info.robot.mode == "point_mass" and info.rows == [0, 1, 2]
+    assert info.robot.mode == "point_mass"
+    assert info.rows == [0, 1, 2]
 
 
 @pytest.mark.parametrize(("change", "field"), [
@@ -74,7 +83,7 @@ def test_session_info_of_a_3dof_point_mass_robot() -> None:
     (lambda m: m["robot"].update(mode="hexapod"), "robot.mode"),
 ])
 def test_bad_session_info_names_the_field(change: Any, field: str) -> None:
-    msg = {"v": 1, **load_scenario("caroca_15kg").info()}
+    msg = {"v": 1, **session_info(load_scenario("caroca_15kg"))}
     change(msg)
     with pytest.raises(ProtocolError, match=f"session/info: {field.split(':')[0]}"):
         SessionInfo.from_payload(msgpack.packb(msg))
@@ -188,7 +197,8 @@ def test_sdk_answers_each_state_once_its_setpoint_is_there(session_id: str) -> N
         h.state(2)
         h.setpoint(2)
         c = h.next_command()
-        assert c.step == 2 and c.tensions[0] == pytest.approx(2.0 + 2.2)
+        assert c.step == 2
+        assert c.tensions[0] == pytest.approx(2.0 + 2.2)
         h.status("finished")
         t.join(WAIT)
         assert not t.is_alive()
@@ -196,11 +206,14 @@ def test_sdk_answers_each_state_once_its_setpoint_is_there(session_id: str) -> N
         h.close()
     assert "error" not in out, out
     report = out["report"]
-    assert report.exit_code == 0 and report.status is not None and report.status.state == "finished"
+    assert report.exit_code == 0
+    assert report.status is not None
+    assert report.status.state == "finished"
     assert (report.answered, report.last_step) == (4, 2)
     assert [(k, j) for k, j, _ in calls] == [(0, 0), (1, 1), (1, 1), (2, 2)]
     assert {mass for _, _, mass in calls} == {15.0}
-    assert report.info is not None and report.info.scenario == "caroca_15kg"
+    assert report.info is not None
+    assert report.info.scenario == "caroca_15kg"
     assert h.commands.empty()
 
 
@@ -215,7 +228,8 @@ def test_sdk_exits_on_aborted_and_on_a_bad_answer(session_id: str) -> None:
         assert h.alive.wait(WAIT)
         h.status("aborted")
         t.join(WAIT)
-        assert out["report"].exit_code == 1 and out["report"].status.state == "aborted"
+        assert out["report"].exit_code == 1
+        assert out["report"].status.state == "aborted"
         h.alive.clear()
         t, out, _ = run_in_thread(Wrong(), h)
         assert h.alive.wait(WAIT)
@@ -223,7 +237,8 @@ def test_sdk_exits_on_aborted_and_on_a_bad_answer(session_id: str) -> None:
         h.state(0)
         t.join(WAIT)
         assert not t.is_alive()
-        assert isinstance(out.get("error"), ValueError) and "8 finite tensions" in str(out["error"])
+        assert isinstance(out.get("error"), ValueError)
+        assert "8 finite tensions" in str(out["error"])
     finally:
         h.close()
 
@@ -234,7 +249,8 @@ def test_sdk_gives_up_without_a_session(session_id: str) -> None:
     try:
         t, out, _ = run_in_thread(controller(lambda s, p: [0.0]), h, info_timeout=0.5)
         t.join(WAIT)
-        assert out["report"].exit_code == 1 and out["report"].answered == 0
+        assert out["report"].exit_code == 1
+        assert out["report"].answered == 0
         t, out, _ = run_in_thread(controller(lambda s, p: [0.0]), h, fetch_session_info=False,
                                   idle_timeout=0.5)
         t.join(WAIT)
@@ -243,7 +259,8 @@ def test_sdk_gives_up_without_a_session(session_id: str) -> None:
         time.sleep(0.3)
         stop.set()  # ...until told to stop
         t.join(WAIT)
-        assert not t.is_alive() and out["report"].info is None
+        assert not t.is_alive()
+        assert out["report"].info is None
     finally:
         h.close()
 
@@ -256,7 +273,8 @@ def test_example_remote_controller_is_short_and_uses_the_sdk() -> None:
     src = (EXAMPLES / "remote_controller.py").read_text()
     assert len(src.splitlines()) <= 25
     imported = {n.module for n in ast.walk(ast.parse(src)) if isinstance(n, ast.ImportFrom)}
-    assert "cdpr.client" in imported and "cdpr_controller" not in str(imported)
+    assert "cdpr.runtime.client" in imported
+    assert "cdpr_controller" not in str(imported)
 
 
 def test_plain_example_imports_nothing_from_cdpr() -> None:
@@ -368,7 +386,8 @@ def test_sdk_controller_reconnects_through_a_restarted_router(session_id: str, t
             deadline = time.monotonic() + 90
             while time.monotonic() < deadline and (not steps or steps[-1] < 800):
                 time.sleep(0.02)
-            assert steps and steps[-1] >= 800, procs.report()
+            assert steps, procs.report()
+            assert steps[-1] >= 800, procs.report()
             assert procs.stop("router", signal.SIGKILL) == -signal.SIGKILL
             killed_at = steps[-1]
             time.sleep(1.0)
@@ -380,10 +399,13 @@ def test_sdk_controller_reconnects_through_a_restarted_router(session_id: str, t
     finally:
         procs.close()
     s = last_json_line(procs.log("up"))
-    assert s["exit_ok"] is True and s["steps"] == 3000 and killed_at < 3000
+    assert s["exit_ok"] is True
+    assert s["steps"] == 3000
+    assert killed_at < 3000
     assert s["final_position_error"] < 1e-3
     log = procs.log("up")
-    assert "controller left the session" in log and "resuming" in log, log
+    assert "controller left the session" in log, log
+    assert "resuming" in log, log
     assert "up to step 2999" in procs.log("remote")
     print(f"router B restarted at step {killed_at}; session rate {s['rate']:.0f} steps/s")
 
@@ -418,4 +440,38 @@ def test_the_readme_commands_on_the_default_port(session_id: str, tmp_path: Path
     finally:
         procs.close()
     s = last_json_line(procs.log("up"))
-    assert s["exit_ok"] is True and s["steps"] == 1000
+    assert s["exit_ok"] is True
+    assert s["steps"] == 1000
+
+
+@pytest.mark.slow
+def test_a_base_install_runs_the_remote_controller_example(session_id: str, tmp_path: Path) -> None:
+    """`pip install .` (no extras) in a fresh venv: no dartpy, rerun-sdk, matplotlib, pydantic or click; the
+    example controller still completes a session started by `cdpr up` (the full install, here)."""
+    venv = tmp_path / "base-venv"
+    subprocess.run([sys.executable, "-m", "venv", str(venv)], check=True, timeout=120)
+    python = venv / "bin" / "python"
+    install = subprocess.run([str(python), "-m", "pip", "install", "--quiet", "--disable-pip-version-check",
+                              str(ROOT)], capture_output=True, text=True, timeout=900, check=False)
+    assert install.returncode == 0, install.stderr[-3000:]
+    probe = ("import importlib.util as u; print(sorted(m for m in ('dartpy', 'rerun', 'matplotlib', 'pydantic', "
+             "'click', 'yaml', 'cdpr_sim', 'cdpr') if u.find_spec(m)))")
+    found = subprocess.run([str(python), "-c", probe], capture_output=True, text=True, check=True).stdout
+    assert found.strip() == "['cdpr', 'cdpr_sim']", found  # the service packages come along, their extras do not
+    port = free_port()
+    procs = Processes()
+    try:
+        procs.start("up", [*CDPR, "up", "caroca_15kg", "--duration", "1", "--session", session_id,
+                           "--without", "controller", "--listen", f"tcp/127.0.0.1:{port}", "--quiet"],
+                    tmp_path, tmp_path / "up.log")
+        procs.start("remote", [str(python), str(EXAMPLES / "remote_controller.py"),
+                               "--connect", f"tcp/127.0.0.1:{port}", "--session", session_id],
+                    tmp_path, tmp_path / "remote.log")
+        codes = procs.wait(["up", "remote"], timeout=180)
+        assert codes == {"up": 0, "remote": 0}, procs.report()
+    finally:
+        procs.close()
+    s = last_json_line(procs.log("up"))
+    assert s["exit_ok"] is True
+    assert s["steps"] == 1000
+    assert s["final_position_error"] < 1e-3

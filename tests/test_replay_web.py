@@ -29,8 +29,9 @@ ARGS = [
 def looks_loaded(png: bytes) -> tuple[bool, dict[str, int]]:
     """The loading screen is a dark, nearly grey page (≈100 colours, no saturated pixel); a loaded
     recording shows white plot panels with coloured curves (thousands of colours and saturated pixels)."""
-    from PIL import Image
     import io
+
+    from PIL import Image
 
     a = np.asarray(Image.open(io.BytesIO(png)).convert("RGB")).astype(int)
     colourful = int(((a.max(axis=-1) - a.min(axis=-1)) > 100).sum())
@@ -76,8 +77,9 @@ def test_web_replay_renders_the_demo_recording(demo_recording: tuple[dict, Path]
 
 def test_the_loading_screen_is_not_taken_for_a_recording() -> None:
     """The pixel test itself can fail: a dark, grey page is not a loaded recording."""
-    from PIL import Image
     import io
+
+    from PIL import Image
 
     img = Image.new("RGB", (1600, 1000), (26, 28, 30))
     buf = io.BytesIO()

@@ -16,10 +16,11 @@ import numpy as np
 import pytest
 from scipy.optimize import linprog
 
+from cdpr.config.robot import load_robot, shipped_robots
 from cdpr.errors import InputError
-from cdpr.kinematics import inverse_kinematics
-from cdpr.robot import Robot, load_robot, shipped_robots
-from cdpr.rotation import rpy_to_matrix
+from cdpr.mechanics.kinematics import inverse_kinematics
+from cdpr.mechanics.robot import Robot
+from cdpr.mechanics.rotation import rpy_to_matrix
 
 TEST_ROBOTS = Path(__file__).parent / "robots"
 VALID = TEST_ROBOTS / "valid"

@@ -1,4 +1,4 @@
-"""SDF export (cdpr.sdf, `cdpr export-sdf`): every link and joint against the robot file, then DART.
+"""SDF export (cdpr.tools.sdf, `cdpr export-sdf`): every link and joint against the robot file, then DART.
 
 The XML is read back with xml.etree and compared number by number with the robot (mass, inertia, attach
 points, joint frames and limits); DART's own SDF parser then loads it, and the tree version, closed
@@ -14,12 +14,14 @@ from pathlib import Path
 import dartpy as dart
 import numpy as np
 import pytest
-from cdpr.dynamics import gravity_wrench
-from cdpr.kinematics import inverse_kinematics
-from cdpr.robot import Robot, load_robot, shipped_robots
-from cdpr.rotation import rpy_to_matrix
-from cdpr.sdf import LINK_MASS, matrix_to_rpy, sdf_string, sdf_world, write_sdf
-from cdpr.tda import make_tda
+
+from cdpr.config.robot import load_robot, shipped_robots
+from cdpr.mechanics.dynamics import gravity_wrench
+from cdpr.mechanics.kinematics import inverse_kinematics
+from cdpr.mechanics.robot import Robot
+from cdpr.mechanics.rotation import rpy_to_matrix
+from cdpr.mechanics.tda import make_tda
+from cdpr.tools.sdf import LINK_MASS, matrix_to_rpy, sdf_string, sdf_world, write_sdf
 from conftest import cdpr, last_json_line
 
 ROBOTS = shipped_robots() + sorted(
@@ -28,7 +30,8 @@ ROBOTS = shipped_robots() + sorted(
 
 
 def nums(el: ET.Element | None) -> np.ndarray:
-    assert el is not None and el.text is not None
+    assert el is not None
+    assert el.text is not None
     return np.array([float(x) for x in el.text.split()])
 
 
@@ -41,7 +44,8 @@ def pose(el: ET.Element) -> tuple[np.ndarray, np.ndarray]:
 
 def model_of(robot: Robot, close_loops: bool = True) -> ET.Element:
     root = ET.fromstring(sdf_string(robot, close_loops))
-    assert root.tag == "sdf" and root.get("version") == "1.6"
+    assert root.tag == "sdf"
+    assert root.get("version") == "1.6"
     model = root.find("world/model")
     assert model is not None
     return model
@@ -65,14 +69,16 @@ def test_links_and_joints_match_the_robot_file(name: str) -> None:
     model = model_of(robot)
     links, joints = by_name(model, "link"), by_name(model, "joint")
     legs = [f"cable_{i}_{part}" for i in range(m) for part in ("upper", "lower")]
-    assert set(links) == {"frame", "platform", *legs} and len(model.findall("link")) == 2 + 2 * m
+    assert set(links) == {"frame", "platform", *legs}
+    assert len(model.findall("link")) == 2 + 2 * m
     expected = {"frame_fixed": ("fixed", "world", "frame")}
     for i in range(m):
         expected[f"cable_{i}_universal"] = ("universal", "frame", f"cable_{i}_upper")
         expected[f"cable_{i}"] = ("prismatic", f"cable_{i}_upper", f"cable_{i}_lower")
         expected[f"cable_{i}_ball"] = ("ball", f"cable_{i}_lower", "platform")
     got = {n: (j.get("type"), j.findtext("parent"), j.findtext("child")) for n, j in joints.items()}
-    assert got == expected and len(model.findall("joint")) == 1 + 3 * m
+    assert got == expected
+    assert len(model.findall("joint")) == 1 + 3 * m
 
     # The platform: home pose, mass and the full inertia about the centre of mass.
     platform = links["platform"]
@@ -185,7 +191,9 @@ def test_dart_loads_the_tree_version(name: str, tmp_path: Path) -> None:
         prismatic = sk.getJoint(f"cable_{i}")
         assert (
             prismatic.getType() == "PrismaticJoint"
-            and prismatic.getParentBodyNode().getName() == f"cable_{i}_upper"
+        )
+        assert (
+            prismatic.getParentBodyNode().getName() == f"cable_{i}_upper"
         )
         np.testing.assert_allclose(
             lower.getTransform().rotation() @ prismatic.getAxis(), ik.directions[i], atol=1e-12
@@ -267,4 +275,5 @@ def test_cli_export_sdf(tmp_path: Path) -> None:
     proc = cdpr("export-sdf", "kntu_planar", "--tree", "-o", "-", check=True)
     assert proc.stdout == sdf_string(load_robot("kntu_planar"), close_loops=False)
     proc = cdpr("export-sdf", "caroca", "-o", str(tmp_path / "no" / "such" / "dir.sdf"))
-    assert proc.returncode == 2 and "cannot write" in proc.stderr
+    assert proc.returncode == 2
+    assert "cannot write" in proc.stderr

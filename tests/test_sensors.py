@@ -8,10 +8,11 @@ import math
 
 import numpy as np
 import pytest
+
+from cdpr.config.robot import load_robot
+from cdpr.config.scenario import load_scenario
+from cdpr.mechanics.rotation import rpy_to_matrix
 from cdpr.protocol import ProtocolError, Sensors
-from cdpr.robot import load_robot
-from cdpr.rotation import rpy_to_matrix
-from cdpr.scenario import load_scenario
 from cdpr_sim.core import PlatformSim
 from cdpr_sim.elastic import ElasticSim
 from cdpr_sim.sensors import SensorConfig, SensorSuite, measure, truth

@@ -1,7 +1,7 @@
 """The sim's physics core on real DART: clamping, free fall, Newton–Euler, equilibrium, determinism.
 
 Independent references: the closed form of semi-implicit Euler under constant gravity,
-``cdpr.dynamics.forward_dynamics`` (Newton–Euler written in numpy, no DART), ``cdpr.kinematics``
+``cdpr.mechanics.dynamics.forward_dynamics`` (Newton–Euler written in numpy, no DART), ``cdpr.mechanics.kinematics``
 for cable lengths, rates and the wrench matrix, scipy's ``lsq_linear`` for equilibrium tensions, and
 the scalar planar equations m·a = F + m·g, I_yy·θ̈ = τ_y. Point-mass and planar test robots are
 built here, so these tests do not move when the shipped robot files change.
@@ -14,13 +14,15 @@ from functools import partial
 
 import numpy as np
 import pytest
-from cdpr.dynamics import forward_dynamics, gravity_wrench
-from cdpr.kinematics import cable_length_rates, inverse_kinematics
-from cdpr.robot import Robot, RobotSpec, load_robot, robot_from_spec, shipped_robots
-from cdpr.rotation import matrix_to_rotvec, quat_to_matrix, rotvec_to_matrix, rpy_to_matrix
-from cdpr_sim.core import PlatformSim, PlatformState, clamp_tensions
 from scipy.linalg import block_diag
 from scipy.optimize import lsq_linear
+
+from cdpr.config.robot import RobotSpec, load_robot, robot_from_spec, shipped_robots
+from cdpr.mechanics.dynamics import forward_dynamics, gravity_wrench
+from cdpr.mechanics.kinematics import cable_length_rates, inverse_kinematics
+from cdpr.mechanics.robot import Robot
+from cdpr.mechanics.rotation import matrix_to_rotvec, quat_to_matrix, rotvec_to_matrix, rpy_to_matrix
+from cdpr_sim.core import PlatformSim, PlatformState, clamp_tensions
 
 G = 9.81
 DT = 1e-3

@@ -54,15 +54,15 @@ from dataclasses import dataclass
 
 import numpy as np
 import pytest
-from cdpr.robot import Robot
-from cdpr.rotation import matrix_to_rotvec, rotvec_to_matrix
-from cdpr.scenario import load_scenario
-from cdpr_controller.core import ControllerCore
-from cdpr_sim.core import PlatformSim
-from cdpr_sim.node import state_message
-from cdpr_trajectory.core import setpoint_at
 from scipy.integrate import solve_ivp
 from scipy.linalg import expm
+
+from cdpr.config.scenario import load_scenario
+from cdpr.mechanics.robot import Robot
+from cdpr.mechanics.rotation import matrix_to_rotvec, rotvec_to_matrix
+from cdpr_controller.core import ControllerCore
+from cdpr_sim.core import PlatformSim, state_message
+from cdpr_trajectory.core import setpoint_at
 
 STEPS = 1000  # T = 1 s at the scenario's dt = 1 ms
 G = np.array([0.0, 0.0, -9.81])

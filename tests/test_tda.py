@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import itertools
 from dataclasses import dataclass
 
 import numpy as np
@@ -10,11 +11,12 @@ import quadprog
 from scipy.optimize import lsq_linear
 from scipy.stats import special_ortho_group
 
-from cdpr.dynamics import gravity_wrench, required_wrench
-from cdpr.kinematics import inverse_kinematics
-from cdpr.robot import Robot, load_robot
-from cdpr.rotation import rpy_to_matrix
-from cdpr.tda import FEASIBLE_STATUSES, METHODS, STATUSES, TdaResult, make_tda
+from cdpr.config.robot import load_robot
+from cdpr.mechanics.dynamics import gravity_wrench, required_wrench
+from cdpr.mechanics.kinematics import inverse_kinematics
+from cdpr.mechanics.robot import Robot
+from cdpr.mechanics.rotation import rpy_to_matrix
+from cdpr.mechanics.tda import FEASIBLE_STATUSES, METHODS, STATUSES, TdaResult, make_tda
 
 ALL = sorted(METHODS)
 QP_LIKE = ["qp", "continuity"]
@@ -117,7 +119,8 @@ def check_result(res: TdaResult, c: Case, method: str) -> None:
     f = res.tensions
     assert f.shape == (c.W.shape[1],)
     assert np.all(np.isfinite(f))
-    assert np.all(f >= c.lb) and np.all(f <= c.ub)
+    assert np.all(f >= c.lb)
+    assert np.all(f <= c.ub)
     assert res.method == method
     assert res.status in STATUSES
     assert res.feasible == (res.status in FEASIBLE_STATUSES)
@@ -241,12 +244,14 @@ def test_non_finite_input_keeps_last_feasible(method: str) -> None:
     W_nan = case.W.copy()
     W_nan[2, 3] = np.nan
     first = tda.solve(W_nan, case.w, case.lb, case.ub)
-    assert first.status == "invalid_input" and not first.feasible
+    assert first.status == "invalid_input"
+    assert not first.feasible
     np.testing.assert_array_equal(first.tensions, case.lb)
     good = tda.solve(case.W, case.w, case.lb, case.ub)
     assert good.feasible
     bad = tda.solve(case.W, np.r_[case.w[:-1], np.inf], case.lb, case.ub)
-    assert bad.status == "invalid_input" and not bad.feasible
+    assert bad.status == "invalid_input"
+    assert not bad.feasible
     np.testing.assert_array_equal(bad.tensions, good.tensions)
     assert np.all(np.isfinite(bad.tensions))
     tda.reset()
@@ -330,7 +335,8 @@ def test_continuity_does_not_jump_when_qp_switches_active_set() -> None:
     qp_steps, F_qp, qp_status = step_sizes("qp", [W] * 51, w_seq, lb, ub)
     c_steps, F_c, c_status = step_sizes("continuity", [W] * 51, w_seq, lb, ub)
     assert qp_status == c_status == {"optimal"}
-    assert F_qp[0, 0] == lb[0] and F_qp[-1, 0] > lb[0] + 0.1  # the qp's active set switched
+    assert F_qp[0, 0] == lb[0]
+    assert F_qp[-1, 0] > lb[0] + 0.1
     assert qp_steps.max() > 5.0
     assert c_steps.max() < 0.1 * qp_steps.max()
     np.testing.assert_allclose(F_c[0], F_qp[0])  # same start
@@ -372,7 +378,8 @@ def test_continuity_max_rate() -> None:
     tda = make_tda("continuity", max_rate=1.0)
     tda.solve(W_seq[0], w_seq[0], lb, ub)
     jump = tda.solve(W_seq[0], w_seq[0] * 1.5, lb, ub)
-    assert jump.status == "rate_relaxed" and jump.feasible
+    assert jump.status == "rate_relaxed"
+    assert jump.feasible
     assert jump.residual < 1e-6
 
 
@@ -381,7 +388,7 @@ def test_continuity_max_rate() -> None:
 def test_warm_start_does_not_change_the_optimum(method: str, solver: str) -> None:
     cases = [c for c in FEASIBLE if c.W.shape == (6, 8)]
     warm = make_tda("qp", solver=solver)
-    for prev, case in zip(cases, cases[1:], strict=False):
+    for prev, case in itertools.pairwise(cases):
         warm.solve(prev.W, prev.w, prev.lb, prev.ub)
         got = warm.solve(case.W, case.w, case.lb, case.ub)
         cold = make_tda("qp", solver=solver).solve(case.W, case.w, case.lb, case.ub)
@@ -412,7 +419,7 @@ def test_registry_and_factory() -> None:
 def test_tensions_are_read_only() -> None:
     c = FEASIBLE[0]
     res = make_tda("qp").solve(c.W, c.w, c.lb, c.ub)
-    with pytest.raises(ValueError):
+    with pytest.raises(ValueError, match="read-only"):
         res.tensions[0] = 0.0
 
 
@@ -423,7 +430,9 @@ def test_cli_case_caroca_static_150kg(method: str) -> None:
     W = inverse_kinematics(robot, [0.0, 0.0, 1.5]).wrench_matrix
     w = -gravity_wrench(robot)
     res = make_tda(method).solve(W, w, robot.tmin, robot.tmax)
-    assert res.feasible and res.status == "optimal"
-    assert np.all(res.tensions >= robot.tmin) and np.all(res.tensions <= robot.tmax)
+    assert res.feasible
+    assert res.status == "optimal"
+    assert np.all(res.tensions >= robot.tmin)
+    assert np.all(res.tensions <= robot.tmax)
     # The platform hangs still: the cables carry its weight and no net moment.
     np.testing.assert_allclose(W @ res.tensions, [0, 0, 150.0 * 9.81, 0, 0, 0], atol=1e-6)

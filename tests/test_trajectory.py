@@ -8,17 +8,17 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from cdpr.rotation import rpy_to_matrix
-from cdpr.trajectory import (
+from pydantic import BaseModel, ValidationError
+from scipy.spatial.transform import Rotation, Slerp
+
+from cdpr.config.trajectory import TrajectorySpec, trajectory_from_spec
+from cdpr.mechanics.rotation import rpy_to_matrix
+from cdpr.mechanics.trajectory import (
     QuinticWaypoints,
     SCurve,
     Setpoint,
     Trajectory,
-    TrajectorySpec,
-    trajectory_from_spec,
 )
-from pydantic import BaseModel, ValidationError
-from scipy.spatial.transform import Rotation, Slerp
 
 # CASPR's CAROCA demo: (0, 0, 0.2) → (0, 0, 1.2) → (0.9, 0.9, 1.2), 10 s a segment, plus rotations.
 TIMES = [0.0, 10.0, 20.0, 26.0]
@@ -30,7 +30,7 @@ B = [-0.9, -0.9, 1.0]
 
 
 def world_rotvec(R_to: np.ndarray, R_from: np.ndarray) -> np.ndarray:
-    """World-frame rotation vector taking R_from to R_to (scipy, independent of cdpr.rotation)."""
+    """World-frame rotation vector taking R_from to R_to (scipy, independent of cdpr.mechanics.rotation)."""
     return Rotation.from_matrix(R_to @ R_from.T).as_rotvec()
 
 

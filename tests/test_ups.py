@@ -1,9 +1,9 @@
 """The seed paper's U-P-S cable model (``cdpr_sim.ups.UpsSim``) against independent references.
 
-References: Newton–Euler in numpy (``cdpr.dynamics.forward_dynamics``, and the per-mode
+References: Newton–Euler in numpy (``cdpr.mechanics.dynamics.forward_dynamics``, and the per-mode
 ``reference_acceleration`` of tests/test_sim_core.py) for the platform alone and for the platform
 carrying the legs' lower links as point masses at its platform points; a quasi-static massless-leg
-model of the passive U/S joint damping, derived below; ``cdpr.kinematics`` for lengths and rates; the
+model of the passive U/S joint damping, derived below; ``cdpr.mechanics.kinematics`` for lengths and rates; the
 ideal-cable ``PlatformSim`` in the 15 kg closed loop; and the real services (``cdpr run``).
 
 Measured on the shipped CAROCA (15 kg, dt = 1 ms, links of 1e-4 kg): the 11 s closed-loop trajectory
@@ -20,13 +20,14 @@ from collections.abc import Callable
 
 import numpy as np
 import pytest
-from cdpr.dynamics import forward_dynamics, mass_matrix
-from cdpr.kinematics import inverse_kinematics
-from cdpr.robot import Robot, load_robot
-from cdpr.scenario import load_scenario
+
+from cdpr.config.robot import load_robot
+from cdpr.config.scenario import load_scenario
+from cdpr.mechanics.dynamics import forward_dynamics, mass_matrix
+from cdpr.mechanics.kinematics import inverse_kinematics
+from cdpr.mechanics.robot import Robot
 from cdpr_controller.core import ControllerCore
-from cdpr_sim.core import PlatformSim, PlatformState, StepReport
-from cdpr_sim.node import make_sim, state_message
+from cdpr_sim.core import PlatformSim, PlatformState, StepReport, make_sim, state_message
 from cdpr_sim.ups import LINK_MASS, UpsSim
 from cdpr_trajectory.core import setpoint_at
 from conftest import cdpr, last_json_line

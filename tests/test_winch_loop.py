@@ -11,8 +11,9 @@ import time
 import numpy as np
 import pytest
 import zenoh
+
 from cdpr.protocol import Keys, Sensors, State, Status
-from cdpr.transport import zenoh_config
+from cdpr.runtime.transport import zenoh_config
 from conftest import CDPR, cdpr, free_port, last_json_line
 
 pytestmark = pytest.mark.slow

@@ -1,4 +1,4 @@
-"""The wrench-feasible workspace (cdpr.workspace), the scenario check built on it and `cdpr workspace`.
+"""The wrench-feasible workspace (cdpr.mechanics.workspace), the scenario check built on it and `cdpr workspace`.
 
 Oracles: a linear program per problem (scipy's HiGHS), the project's QP tension distribution, and a
 closed form for the 4-cable point-mass robot on its vertical axis.
@@ -11,17 +11,19 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from scipy.optimize import linprog
+
 from cdpr import recording
-from cdpr.control import controlled_rows
-from cdpr.dynamics import gravity_wrench, required_wrench
+from cdpr.config.robot import load_robot, shipped_robots
+from cdpr.config.scenario import load_scenario, shipped_scenarios
 from cdpr.errors import InputError
-from cdpr.kinematics import inverse_kinematics
-from cdpr.robot import load_robot, shipped_robots
-from cdpr.rotation import rpy_to_matrix
-from cdpr.scenario import load_scenario, shipped_scenarios
-from cdpr.tda import make_tda
-from cdpr.trajectory import QuinticWaypoints
-from cdpr.workspace import (
+from cdpr.mechanics.control import controlled_rows
+from cdpr.mechanics.dynamics import gravity_wrench, required_wrench
+from cdpr.mechanics.kinematics import inverse_kinematics
+from cdpr.mechanics.rotation import rpy_to_matrix
+from cdpr.mechanics.tda import make_tda
+from cdpr.mechanics.trajectory import QuinticWaypoints
+from cdpr.mechanics.workspace import (
     compute_workspace,
     first_violation,
     grid_points,
@@ -31,7 +33,6 @@ from cdpr.workspace import (
     wrenches_feasible,
 )
 from conftest import cdpr, last_json_line
-from scipy.optimize import linprog
 
 HERE = Path(__file__).parent
 BAD_STATIC = HERE / "scenarios" / "leaves_workspace.yaml"
@@ -111,7 +112,8 @@ def test_wrench_matrices_are_the_kinematics_ones() -> None:
         )
     point_mass = load_robot("point_mass_4")
     W0 = wrench_matrices(point_mass, point_mass.frame_points[:1])[0]  # cable 0 has zero length there
-    assert np.isnan(W0[:, 0]).all() and np.isfinite(W0[:, 1:]).all()
+    assert np.isnan(W0[:, 0]).all()
+    assert np.isfinite(W0[:, 1:]).all()
     assert not wrench_feasible(point_mass, point_mass.frame_points[:1])[0]
 
 
@@ -190,11 +192,14 @@ def test_grid_points_cover_the_frame_box() -> None:
     robot = load_robot("caroca")
     points, shape, spacing = grid_points(robot, 0.3)
     assert points.shape == (np.prod(shape), 3)
-    assert np.all(spacing <= 0.3 + 1e-12) and np.all(spacing > 0.3 * 0.9)
+    assert np.all(spacing <= 0.3 + 1e-12)
+    assert np.all(spacing > 0.3 * 0.9)
     np.testing.assert_allclose(points.min(axis=0), robot.frame_min + spacing / 2)
     np.testing.assert_allclose(points.max(axis=0), robot.frame_max - spacing / 2)
     planar, shape2, spacing2 = grid_points(load_robot("kntu_planar"), 0.1)
-    assert shape2[1] == 1 and spacing2[1] == 0.0 and np.all(planar[:, 1] == 0.0)
+    assert shape2[1] == 1
+    assert spacing2[1] == 0.0
+    assert np.all(planar[:, 1] == 0.0)
     with pytest.raises(ValueError, match="step"):
         grid_points(robot, 0.0)
 
@@ -205,7 +210,8 @@ def test_workspace_summary() -> None:
     assert ws.fraction == pytest.approx(ws.feasible.sum() / len(ws.points))
     lo, hi = ws.bounding_box()
     good = ws.points[ws.feasible]
-    assert np.all(good >= lo) and np.all(good <= hi)
+    assert np.all(good >= lo)
+    assert np.all(good <= hi)
     assert compute_workspace(robot, 0.25, tmin=500.0, tmax=600.0).bounding_box() is None
 
 
@@ -223,13 +229,16 @@ def test_sample_times_hit_every_waypoint() -> None:
     traj = QuinticWaypoints([0.0, 0.33, 1.0], [[0, 0, 1], [0, 0, 2], [1, 0, 2]])
     t = sample_times(traj, 0.05)
     assert {0.0, 0.33, 1.0} <= set(t.tolist())
-    assert np.all(np.diff(t) > 0) and np.diff(t).max() <= 0.05 + 1e-12 and len(t) == 22
+    assert np.all(np.diff(t) > 0)
+    assert np.diff(t).max() <= 0.05 + 1e-12
+    assert len(t) == 22
 
 
 def first_bad_sample_by_lp(path: Path) -> tuple[float, np.ndarray, str]:
     """The first sample (same sample times) whose static or dynamic wrench an LP finds infeasible."""
     import yaml
-    from cdpr.trajectory import trajectory_from_spec
+
+    from cdpr.config.trajectory import trajectory_from_spec
 
     spec = yaml.safe_load(path.read_text())
     robot = load_robot(spec["robot"]).with_mass(spec["platform"]["mass"])
@@ -271,7 +280,8 @@ def test_the_dynamic_failure_is_where_the_platform_would_fall_faster_than_gravit
     positions = np.array([traj.sample(t).position for t in times])
     assert wrench_feasible(robot, positions).all()
     v = first_violation(robot, traj)
-    assert v is not None and v.kind == "dynamic"
+    assert v is not None
+    assert v.kind == "dynamic"
     az = np.array([traj.sample(t).accel[2] for t in times])
     first_faster_than_g = times[np.argmax(az < -9.81)]
     assert v.t == first_faster_than_g
@@ -282,7 +292,8 @@ def test_cli_run_refuses_the_scenario_in_one_line() -> None:
     proc = cdpr("run", str(BAD_STATIC), "--quiet", timeout=60)
     assert proc.returncode == 2
     lines = proc.stderr.strip().splitlines()
-    assert len(lines) == 1 and "leaves the wrench-feasible workspace at t = " in lines[0]
+    assert len(lines) == 1
+    assert "leaves the wrench-feasible workspace at t = " in lines[0]
     assert proc.stdout == ""
 
 
@@ -299,10 +310,12 @@ def test_cli_workspace_json_and_recording(tmp_path: Path) -> None:
     )
     out = last_json_line(proc.stdout)
     ws = compute_workspace(load_robot("point_mass_4").with_payload(0.5), 0.25)
-    assert out["points"] == len(ws.points) == 16**3 and out["grid"] == [16, 16, 16]
+    assert out["points"] == len(ws.points) == 16**3
+    assert out["grid"] == [16, 16, 16]
     assert out["feasible"] == int(ws.feasible.sum()) > 0
     assert out["fraction"] == pytest.approx(ws.fraction)
-    assert out["mass"] == 1.5 and out["problems"] == []
+    assert out["mass"] == 1.5
+    assert out["problems"] == []
     np.testing.assert_allclose(out["bounding_box"]["min"], ws.bounding_box()[0])
     counts: dict[str, int] = {}
     for chunk in RrdReader(str(rrd)).stream().to_chunks():
@@ -324,4 +337,5 @@ def test_cli_workspace_rejects_bad_arguments() -> None:
         (("--payload", "-1"), "payload"),
     ]:
         proc = cdpr("workspace", "point_mass_4", *args, timeout=60)
-        assert proc.returncode == 2 and text in proc.stderr, proc.stderr
+        assert proc.returncode == 2, proc.stderr
+        assert text in proc.stderr, proc.stderr

@@ -1,0 +1,220 @@
+"""The clock node: waits for every expected participant, then issues ticks (see :mod:`cdpr_clock.core`).
+
+It publishes ``clock/status`` on every change and once a second, pauses while an expected participant
+has no liveliness token, repeats the ticks of an unfinished step after a stall (``resend_after``) or a
+resume, answers ``session/info`` queries with the scenario, and ends the session with a ``finished``
+status once the sim has published its last state.
+"""
+
+from __future__ import annotations
+
+import argparse
+import time
+from collections.abc import Sequence
+from typing import Any
+
+import zenoh
+
+from cdpr.config.scenario import Scenario
+from cdpr.errors import InputError
+from cdpr.protocol import SERVICES, Keys, ProtocolError, ServiceStats, State, Status, Tick
+from cdpr.protocol.session import encode_session_info
+from cdpr.runtime.service import Node
+from cdpr.runtime.transport import Event, Inbox, RateLimitedLog, log
+from cdpr_clock.core import ClockCore
+
+LINGER = 2.0  # seconds the clock keeps announcing "finished" while participants leave
+
+
+class ClockNode(Node):
+    name = "clock"
+    direct = True  # handled on Zenoh's receive thread: no hand-off between a message and its answer
+
+    def __init__(
+        self,
+        scenario: Scenario,
+        keys: Keys,
+        expected: Sequence[str] = ("sim", "trajectory", "controller"),
+        realtime: bool = False,
+        lookahead: int = 1,
+        resend_after: float = 1.0,
+        status_period: float = 1.0,
+    ) -> None:
+        super().__init__(keys)
+        self.scenario = scenario
+        self.core = ClockCore(scenario.total_steps, scenario.dt, realtime=realtime, lookahead=lookahead)
+        self.expected = tuple(expected)
+        self.present: set[str] = set()
+        self.resend_after = resend_after
+        self.status_period = status_period
+        self.last_status = 0.0
+        self.state = "waiting"
+        self.reason = ""
+        self.finished_at: float | None = None
+        self.faults: dict[str, dict[str, int]] = {}  # every service's fault counters (stats/{service})
+        self.warn = RateLimitedLog(self.name)
+        self._tick: zenoh.Publisher | None = None
+        self._status: zenoh.Publisher | None = None
+        self._info = encode_session_info(scenario)
+
+    @classmethod
+    def add_arguments(cls, parser: argparse.ArgumentParser) -> None:
+        g = parser.add_argument_group("clock")
+        g.add_argument("--mode", choices=("fast", "realtime"), default="fast", help="(default: %(default)s)")
+        g.add_argument("--expect", default="sim,trajectory,controller",
+                       help="comma-separated participants to wait for (default: %(default)s)")
+        g.add_argument("--lookahead", type=int, choices=range(9), default=1, metavar="0-8",
+                       help="ticks issued ahead of the sim (0: strict one-step handshake; default: %(default)s)")
+        g.add_argument("--resend-after", type=float, default=1.0, metavar="S",
+                       help="seconds without progress before the pending ticks are repeated (default: %(default)s)")
+
+    @classmethod
+    def from_args(cls, scenario: Scenario, keys: Keys, args: argparse.Namespace) -> ClockNode:
+        names = tuple(s.strip() for s in args.expect.split(",") if s.strip())
+        unknown = [n for n in names if n not in SERVICES or n == "clock"]
+        if unknown:
+            raise InputError(f"--expect: unknown participant(s) {', '.join(unknown)}")
+        if not args.resend_after >= 0.01:
+            raise InputError(f"--resend-after: must be at least 0.01 s, got {args.resend_after}")
+        return cls(scenario, keys, expected=names, realtime=args.mode == "realtime", lookahead=args.lookahead,
+                   resend_after=args.resend_after)
+
+    @property
+    def missing(self) -> tuple[str, ...]:
+        return tuple(s for s in self.expected if s not in self.present)
+
+    subscribes = ("state", "stats")
+    publishes = ("tick", "status", "info")
+
+    def declare(self, session: zenoh.Session, inbox: Inbox) -> list[Any]:
+        self._tick, self._status = self.publishers["tick"], self.publishers["status"]
+        return [inbox.watch_liveliness(session, self.keys.alive_all)]
+
+    def reply(self, topic: str) -> bytes:
+        return self._info  # session/info
+
+    def on_status(self, status: Status) -> None:
+        """The clock publishes the status; it does not obey it."""
+
+    # -- events -----------------------------------------------------------------------------------
+    def handle(self, event: Event) -> None:
+        now = time.monotonic()
+        if event.kind == "state":
+            try:
+                state = State.decode(event.payload)
+            except ProtocolError as exc:
+                self.count("bad_states")
+                self.warn("bad_state", f"dropped a bad sim/state: {exc}")
+                return
+            if state.step < self.core.reached:
+                # Only a sim that started afresh goes back in time (a reconnecting sim, e.g. after a
+                # router restart, carries on from its step): the platform's state is lost.
+                self.abort(f"the sim restarted: its state went back from step {self.core.reached} to "
+                           f"step {state.step}; the platform's state is lost", now)
+                return
+            self.core.on_state(state.step, now)
+            if self.core.finished and self.finished_at is None:
+                self.finish(now)
+            return
+        if event.kind == "stats":
+            try:
+                stats = ServiceStats.decode(event.payload)
+            except ProtocolError as exc:
+                self.count("bad_stats")
+                self.warn("bad_stats", f"dropped a bad stats message: {exc}")
+                return
+            self.faults[stats.service] = stats.counters
+            return
+        service = event.key.rsplit("/", 1)[-1]
+        if event.kind == "alive":
+            self.present.add(service)
+        else:
+            self.present.discard(service)
+            if service in self.expected and self.finished_at is None:
+                log(self.name, f"{service} left the session at step {self.core.reached}")
+        if self.finished_at is not None:
+            return
+        if self.missing:
+            if not self.core.paused:
+                self.core.pause(now)
+                self.set_state("paused", f"waiting for {', '.join(self.missing)}", now)
+        elif self.core.paused:
+            resend = self.core.resume(now)
+            if self.core.started_at is not None and resend:
+                log(self.name, f"all participants back; resuming at step {self.core.reached}")
+                self.send_ticks(resend, now, again=True)
+            self.set_state("running", "", now)
+
+    # -- ticking ----------------------------------------------------------------------------------
+    def timeout(self, now: float) -> float:
+        wait = self.core.wait_time(now)
+        return self.idle_period if wait is None else min(wait, self.idle_period)
+
+    def idle(self, now: float) -> None:
+        if self.finished_at is not None:
+            if now - self.last_status >= 0.25:
+                self.publish_status(now)
+            if not (set(self.expected) & self.present) or now - self.finished_at > LINGER:
+                self.done = True
+            return
+        while (k := self.core.next_tick(time.monotonic())) is not None:
+            self.send_ticks([k], time.monotonic())
+        if (
+            not self.core.paused
+            and self.core.started_at is not None
+            and now - self.core.last_progress > self.resend_after
+        ):
+            pending = self.core.pending_ticks()
+            self.warn("stall", f"no progress for {self.resend_after:g} s at step {self.core.reached}; "
+                      f"repeating tick(s) {pending}")
+            self.send_ticks(pending, now, again=True)
+            self.core.last_progress = now
+        if now - self.last_status >= self.status_period:
+            self.publish_status(now)
+
+    def send_ticks(self, steps: list[int], now: float, again: bool = False) -> None:
+        assert self._tick is not None
+        for k in steps:
+            if again:
+                self.core.resends += 1
+            else:
+                self.core.issue(k, now)
+            self._tick.put(Tick(k, k * self.core.dt).encode())
+
+    # -- status -----------------------------------------------------------------------------------
+    def set_state(self, state: str, reason: str, now: float) -> None:
+        self.state, self.reason = state, reason
+        if reason:
+            log(self.name, f"{state}: {reason}")
+        self.publish_status(now)
+
+    def publish_status(self, now: float) -> None:
+        assert self._status is not None
+        final = self.finished_at is not None
+        stats = self.core.stats(self.finished_at if final else now, exact=final)
+        faults = {**self.faults, "clock": dict(self.counters)} if self.counters else dict(self.faults)
+        stats["faults"] = {k: v for k, v in faults.items() if v}
+        status = Status(
+            state=self.state,
+            step=max(self.core.reached, 0),
+            t=max(self.core.reached, 0) * self.core.dt,
+            total_steps=self.core.total_steps,
+            missing=self.missing,
+            reason=self.reason,
+            stats=stats,
+        )
+        self._status.put(status.encode())
+        self.final_status = status
+        self.last_status = now
+
+    def abort(self, reason: str, now: float) -> None:
+        self.finished_at = now
+        self.exit_code = 1
+        self.set_state("aborted", reason, now)
+
+    def finish(self, now: float) -> None:
+        self.finished_at = now
+        self.set_state("finished", "", now)
+        st = self.core.stats(now)
+        log(self.name, f"finished {st['steps']} steps in {st['wall_time']:.2f} s "
+            f"({st['rate']:.0f} steps/s, RTF {st['rtf']:.2f}, late ticks {st['late_ticks']}, resends {st['resends']})")

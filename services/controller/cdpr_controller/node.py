@@ -1,0 +1,91 @@
+"""The controller node: answers every ``sim/state`` k with one ``controller/command`` k.
+
+It waits until it holds both the state and the setpoint of the same step, computes the tensions with
+:class:`cdpr_controller.core.ControllerCore` and publishes them. A repeated state (the clock asked for a
+resend) is answered again.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import zenoh
+
+from cdpr.config.scenario import Scenario
+from cdpr.mechanics.rotation import matrix_to_quat
+from cdpr.protocol import Command, Keys, ProtocolError, Setpoint, State
+from cdpr.runtime.service import Node
+from cdpr.runtime.transport import Event, Inbox, RateLimitedLog, log
+from cdpr_controller.core import ControllerCore
+
+
+class ControllerNode(Node):
+    name = "controller"
+    direct = True  # handled on Zenoh's receive thread: no hand-off between a message and its answer
+
+    @classmethod
+    def make_core(cls, scenario: Scenario) -> ControllerCore:
+        """(state k, setpoint k) → tensions k: ``.step(state, setpoint)``."""
+        return ControllerCore.from_scenario(scenario)
+
+    def __init__(self, scenario: Scenario, keys: Keys) -> None:
+        super().__init__(keys)
+        self.core = self.make_core(scenario)
+        # held at the start pose, at rest: about what step 0 brings
+        pose = (*scenario.initial_position.tolist(), *matrix_to_quat(scenario.initial_rotation).tolist())
+        m = scenario.robot.m
+        self.core.warm_up(State(0, 0.0, pose, (0.0,) * 6, (1.0,) * m, (0.0,) * m),
+                          Setpoint(0, 0.0, pose, (0.0,) * 6, (0.0,) * 6))
+        self.m = scenario.robot.m
+        self.states: dict[int, State] = {}
+        self.setpoints: dict[int, Setpoint] = {}
+        self.answered = -1
+        self.infeasible = 0
+        self.warn = RateLimitedLog(self.name)
+        self._pub: zenoh.Publisher | None = None
+
+    subscribes = ("state", "setpoint")
+    publishes = ("command",)
+
+    def declare(self, session: zenoh.Session, inbox: Inbox) -> list[Any]:
+        self._pub = self.publishers["command"]
+        return []
+
+    def handle(self, event: Event) -> None:
+        try:
+            if event.kind == "state":
+                state = State.decode(event.payload, self.m)
+                self.states[state.step] = state
+                k, resend = state.step, state.step <= self.answered
+            else:
+                sp = Setpoint.decode(event.payload)
+                self.setpoints[sp.step] = sp
+                k, resend = sp.step, False
+        except ProtocolError as exc:
+            self.count(f"bad_{event.kind}s")
+            self.warn(f"bad_{event.kind}", f"dropped a bad {event.kind} message: {exc}")
+            return
+        state_k, setpoint_k = self.states.get(k), self.setpoints.get(k)
+        if state_k is not None and setpoint_k is not None and (k > self.answered or resend):
+            self.answer(state_k, setpoint_k)
+
+    def answer(self, state: State, setpoint: Setpoint) -> None:
+        result, lengths = self.core.command(state, setpoint)
+        if not result.feasible:
+            self.infeasible += 1
+            self.count("infeasible_distributions")
+            self.warn("infeasible", f"step {state.step}: tension distribution {result.status} "
+                      f"(residual {result.residual:.3g}); sending the nearest admissible tensions")
+        assert self._pub is not None
+        self._pub.put(
+            Command(state.step, state.t, tuple(result.tensions.tolist()), result.feasible, result.status).encode()
+            if lengths is None else
+            Command(state.step, state.t, (), result.feasible, result.status, tuple(lengths.tolist())).encode()
+        )
+        self.answered = max(self.answered, state.step)
+        for book in (self.states, self.setpoints):
+            for k in [k for k in book if k < state.step]:
+                del book[k]
+
+    def close(self) -> None:
+        log(self.name, f"answered up to step {self.answered}; infeasible distributions: {self.infeasible}")

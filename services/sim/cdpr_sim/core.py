@@ -1,0 +1,347 @@
+"""Physics core of the sim service: the platform as a DART rigid body pulled by m cables. No I/O.
+
+Model (seed paper §2.3 and §3.1)
+--------------------------------
+* The platform is one rigid body with the robot's mass and full 3×3 inertia about its centre of mass
+  (the body origin). Gravity is (0, 0, −9.81) in every mode.
+* Joint to the world, per robot mode:
+
+  - ``spatial`` and ``point_mass``: a DART ``FreeJoint`` (6 DOF). A point-mass robot is the same free
+    body with every cable attached at the centre of mass, so the cables exert no moment on it.
+  - ``planar``: a DART ``PlanarJoint`` in the ZX plane (translations along z and x, rotation about +y).
+    The constraint is exact, in joint coordinates: the body has 3 DOF, so y, and the rotations about x
+    and z, cannot change (no penalty, no drift).
+
+* Cables are massless, inextensible, pull-only force elements. Each step applies the tension
+  ``f_i ∈ [0, tmax]`` (see :func:`clamp_tensions`) along the unit vector ``d_i`` from ``t + R b_i`` to
+  ``a_i``. The cable's length is not a constraint: a tension-controlled winch pays cable in or out as
+  needed, so only the force's line of action matters. The wrench on the platform is ``W f`` exactly as
+  in :mod:`cdpr.mechanics.kinematics` (force ``Σ f_i d_i`` and moment ``Σ (R b_i) × f_i d_i`` about the COM).
+* Cable damping (``robot.cable_damping`` = c, N·s/m): the paper's cable is an actuated prismatic joint
+  with viscous damping, whose force opposes the cable's length rate. On the platform this is the extra,
+  bilateral, force ``c·l̇_i`` along ``d_i``: a lengthening cable (l̇_i > 0) pulls the platform back, a
+  shortening one pushes it, and its power ``−Σ c·l̇_i²`` is never positive. It is evaluated with the
+  twist at the start of the step and reported in :attr:`StepReport.damping`, apart from the tensions.
+  The passive U/S joint damping of the Gazebo model (``robot.passive_damping``) has no counterpart in a
+  single-body model and is not simulated.
+* Integration: DART's ``World.step``, semi-implicit (symplectic) Euler, forces evaluated at
+  ``(q_k, v_k)``: ``v_{k+1} = v_k + dt·M⁻¹(W f + w_g − C v_k)``, then the pose moves with the *new*
+  twist: ``t_{k+1} = t_k + dt·ṫ_{k+1}`` and ``R_{k+1} = exp(dt [ω_{k+1}]×) R_k`` (DART evaluates exp by
+  its Taylor series for small angles, error < θ³/6). With dartpy 6.20's ``FreeJoint`` this holds for the
+  world-frame twist at the COM, so ``(v_{k+1} − v_k)/dt`` equals :func:`cdpr.mechanics.dynamics.forward_dynamics`
+  to rounding (tested). Local error O(dt²), global O(dt): a free fall from rest is ``g·t·dt/2`` below
+  ``g t²/2``. DART's body deactivation ("sleeping", on by default in dartpy 6.20's World: thresholds
+  1 cm/s and 0.05 rad/s held for 0.5 s) is switched off, so a slow platform is never frozen.
+
+The state is read back from DART in the world frame (``getTransform``, ``getLinearVelocity``,
+``getAngularVelocity`` of the body, whose origin is the COM). A free body's twist is written through
+the ``FreeJoint``'s world-frame setters, a planar body's as ``[ż, ẋ, θ̇_y]`` (the ZX joint's coordinates
+are in the world frame), so nothing depends on the frame of DART's generalized velocities.
+The same inputs give bit-identical outputs; nothing is random and no module state is mutable.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+
+import dartpy as dart
+import numpy as np
+from numpy.typing import ArrayLike
+
+from cdpr.config.scenario import Scenario
+from cdpr.mechanics.kinematics import cable_geometry
+from cdpr.mechanics.robot import GRAVITY, Robot
+from cdpr.mechanics.rotation import Array, matrix_to_quat
+from cdpr.protocol import State
+
+_ORTHONORMAL_TOL = 1e-6  # a rotation given to the sim must satisfy ‖RᵀR − I‖∞ ≤ this, and det R > 0
+_PLANAR_TOL = 1e-9  # out-of-plane pose/twist components a planar robot tolerates (then set to 0)
+
+
+def clamp_tensions(commanded: np.ndarray, tmax: float) -> tuple[np.ndarray, int, int]:
+    """What the cables can apply: negatives → 0 (a cable only pulls), above ``tmax`` → ``tmax``.
+
+    Returns ``(applied, n_clamped_low, n_clamped_high)``. Pure: ``commanded`` is not modified. ``tmin``
+    is not enforced here (that is the controller's business). A NaN raises ``ValueError``.
+    """
+    f = np.asarray(commanded, dtype=float)
+    if f.ndim == 1 and f.size:  # the usual case, a few numbers: reductions on a list beat numpy's
+        values = f.tolist()
+        if not math.isnan(sum(values)) and min(values) >= 0.0 and max(values) <= tmax:
+            return f.copy(), 0, 0  # no NaN (it would make the sum NaN) and nothing to clamp
+    if np.isnan(f).any():
+        raise ValueError("tensions contain NaN")
+    low = int(np.count_nonzero(f < 0.0))
+    high = int(np.count_nonzero(f > tmax))
+    return np.minimum(np.maximum(f, 0.0), tmax), low, high
+
+
+def _readonly(a: Array) -> Array:
+    a.flags.writeable = False
+    return a
+
+
+@dataclass(frozen=True)
+class PlatformState:
+    """The platform after ``step`` steps, world frame, twist at the centre of mass. Arrays are read-only."""
+
+    step: int
+    t: float
+    position: np.ndarray  # (3,) t, the COM
+    quaternion: np.ndarray  # (4,) [qx, qy, qz, qw], qw ≥ 0
+    rotation: np.ndarray  # (3, 3) R, platform → world
+    twist: np.ndarray  # (6,) [v; ω]
+    cable_lengths: np.ndarray  # (m,) ‖a_i − t − R b_i‖
+    cable_rates: np.ndarray  # (m,) l̇ = J v
+    tensions: np.ndarray  # (m,) as applied (clamped) during the step that led here; zeros at step 0
+
+    @classmethod
+    def of(cls, step: int, t: float, position: np.ndarray, rotation: np.ndarray, twist: np.ndarray,
+           lengths: np.ndarray, rates: np.ndarray, tensions: np.ndarray) -> PlatformState:
+        """A state from read-only arrays (the quaternion is derived from the rotation)."""
+        return cls(step, t, position, _readonly(matrix_to_quat(rotation)), rotation, twist, lengths, rates, tensions)
+
+
+@dataclass(frozen=True)
+class StepReport:
+    """What one step did with the commanded tensions."""
+
+    applied: np.ndarray  # (m,) tensions applied after clamping to [0, tmax]
+    clamped_low: int  # how many commanded tensions were below 0
+    clamped_high: int  # how many were above tmax
+    # (m,) cable damping force c·l̇_i applied along d_i on top of the tensions (> 0 pulls, < 0 pushes)
+    damping: np.ndarray = field(default_factory=lambda: np.zeros(0))
+
+
+@dataclass(frozen=True)
+class _Snapshot:
+    """Everything one step needs about the current state, read from DART once per step. Read-only."""
+
+    position: Array  # (3,)
+    rotation: Array  # (3, 3)
+    twist: Array  # (6,) [v; ω]
+    lengths: Array  # (m,)
+    directions: Array  # (m, 3) d_i, rows of W's force block
+    moments: Array  # (m, 3) (R b_i) × d_i, rows of W's moment block
+    rates: Array  # (m,) l̇ = J v = −(d_i · v + ((R b_i) × d_i) · ω)
+
+
+class PlatformBody:
+    """The platform of ``robot`` alone in a DART world: a free body (a planar joint in the x–z plane for
+    planar robots) with the robot's mass and inertia, gravity on, never put to sleep. The part every
+    sim model shares; what pulls on the body is the model's business."""
+
+    def __init__(self, robot: Robot, time_step: float) -> None:
+        self.planar = robot.mode == "planar"
+        self.world = dart.simulation.World()
+        self.world.setGravity(GRAVITY)
+        self.world.setTimeStep(time_step)
+        sleep = self.world.getDeactivationOptions()
+        sleep.mEnabled = False  # a slow platform must never be frozen
+        self.world.setDeactivationOptions(sleep)
+        skeleton = dart.dynamics.Skeleton("platform")
+        if self.planar:
+            joint, body = skeleton.createPlanarJointAndBodyNodePair()
+            joint.setZXPlane()  # generalized coordinates [z, x, θ about +y]
+        else:
+            joint, body = skeleton.createFreeJointAndBodyNodePair()
+        body.setName("platform")
+        body.setInertia(dart.dynamics.Inertia(robot.mass, np.zeros(3), np.array(robot.inertia, dtype=float)))
+        self.world.addSkeleton(skeleton)
+        self.joint, self.body = joint, body
+
+    def place(self, p: Array, R: Array, v: Array) -> None:
+        """Put the body at position ``p``, rotation ``R`` with twist ``v`` = [ṫ; ω] (world frame), with no
+        external force on it."""
+        if self.planar:
+            positions, velocities = planar_coordinates(p, R, v)
+            self.joint.setPositions(positions)
+            self.joint.setVelocities(velocities)
+        else:
+            tf = dart.math.Isometry3()
+            tf.set_rotation(R)
+            tf.set_translation(p)
+            world = dart.dynamics.Frame.World()
+            self.joint.setTransform(tf, world)
+            self.joint.setLinearVelocity(v[:3], world, world)
+            self.joint.setAngularVelocity(v[3:], world, world)
+        self.body.clearExternalForces()
+
+
+def start_pose(robot: Robot, position: ArrayLike | None, rotation: ArrayLike | None,
+               twist: ArrayLike | None) -> tuple[Array, Array, Array]:
+    """(p, R, v) of a sim's (re)start, checked: defaults are the robot's home pose, at rest."""
+    p = _vector(robot.home_position if position is None else position, 3, "position")
+    R = _rotation(robot.home_rotation if rotation is None else rotation)
+    return p, R, _vector(np.zeros(6) if twist is None else twist, 6, "twist")
+
+
+def check_dt(dt: float) -> float:
+    """``dt`` as a float; ValueError unless it is a positive finite number of seconds."""
+    if not (np.isfinite(dt) and dt > 0.0):
+        raise ValueError(f"dt must be a positive finite number of seconds (got {dt})")
+    return float(dt)
+
+
+class PlatformSim:
+    """A DART world holding the platform of ``robot``, stepped by cable tensions.
+
+    ``dt`` is the step, s. The initial pose defaults to the robot's home pose and the twist to rest.
+    ``t`` is ``step_count * dt`` (computed, not accumulated).
+    """
+
+    def __init__(
+        self,
+        robot: Robot,
+        dt: float = 1e-3,
+        position: ArrayLike | None = None,
+        rotation: ArrayLike | None = None,
+        twist: ArrayLike | None = None,
+    ) -> None:
+        self.robot = robot
+        self.dt = check_dt(dt)
+        self.step_count = 0
+        self._a = np.array(robot.frame_points, dtype=float)
+        self._b = np.array(robot.platform_points, dtype=float)
+        self._zero3 = np.zeros(3)
+        self._platform = PlatformBody(robot, self.dt)
+        self._world, self._joint, self._body = self._platform.world, self._platform.joint, self._platform.body
+        self._tensions = _readonly(np.zeros(robot.m))
+        self._snap: _Snapshot | None = None
+        self.reset(position, rotation, twist)
+
+    @property
+    def t(self) -> float:
+        return self.step_count * self.dt
+
+    # -- state ------------------------------------------------------------------------------------
+    def reset(
+        self,
+        position: ArrayLike | None = None,
+        rotation: ArrayLike | None = None,
+        twist: ArrayLike | None = None,
+    ) -> None:
+        """Back to step 0 at the given pose and twist (defaults: home pose, at rest)."""
+        self._platform.place(*start_pose(self.robot, position, rotation, twist))
+        self._world.reset()
+        self._snap = None
+        self.step_count = 0
+        self._tensions = _readonly(np.zeros(self.robot.m))
+
+    def _snapshot(self) -> _Snapshot:
+        """The current state's geometry, computed at most once per step (until the next step or reset)."""
+        if self._snap is not None:
+            return self._snap
+        tf = self._body.getTransform()
+        p, R = tf.translation(), tf.rotation()
+        v, w = self._body.getLinearVelocity(), self._body.getAngularVelocity()
+        _, lengths, d, moments, rates = cable_geometry(self._a, self._b, p, R, v, w)
+        snap = _Snapshot(*(_readonly(x) for x in (p, R, np.concatenate((v, w)), lengths, d, moments, rates)))
+        self._snap = snap
+        return snap
+
+    def state(self) -> PlatformState:
+        """The current state. Its arrays are read-only and never change afterwards: safe to keep."""
+        s = self._snapshot()
+        return PlatformState.of(self.step_count, self.t, s.position, s.rotation, s.twist, s.lengths, s.rates,
+                                self._tensions)
+
+    # -- dynamics ---------------------------------------------------------------------------------
+    def step(self, tensions: np.ndarray) -> StepReport:
+        """Clamp ``tensions`` (m,) to [0, tmax], apply them and the cable damping, integrate one ``dt``.
+
+        The cables' forces ``(f_i + c·l̇_i) d_i`` at the points ``t + R b_i`` are applied as their sum at
+        the COM plus their moment about it, both in world coordinates: the same wrench as one
+        ``addExtForce(force_i, b_i, isForceLocal=False, isOffsetLocal=True)`` per cable, in two calls.
+        """
+        commanded = np.asarray(tensions, dtype=float)
+        if commanded.shape != (self.robot.m,):
+            raise ValueError(f"expected {self.robot.m} tensions, got shape {commanded.shape}")
+        applied, low, high = clamp_tensions(commanded, self.robot.tmax)
+        s = self._snapshot()
+        damping = self.robot.cable_damping * s.rates
+        pull = applied + damping
+        body = self._body
+        # Net force at the COM and net moment about it, world coordinates: W (f + c l̇).
+        body.setExtForce(pull @ s.directions, self._zero3, False, True)
+        body.setExtTorque(pull @ s.moments, False)
+        self._world.step()  # semi-implicit Euler; clears the external force and torque afterwards
+        self._snap = None
+        self.step_count += 1
+        self._tensions = _readonly(applied)
+        return StepReport(self._tensions, low, high, _readonly(damping))
+
+
+def planar_coordinates(p: Array, R: Array, v: Array) -> tuple[Array, Array]:
+    """A ZX ``PlanarJoint``'s positions ``[z, x, θ_y]`` and velocities ``[ż, ẋ, θ̇_y]`` for a pose and twist.
+
+    Raises ``ValueError`` if the pose or the twist leaves the x–z plane by more than ``_PLANAR_TOL``.
+    """
+    theta = float(np.arctan2(R[0, 2], R[0, 0]))  # R = Ry(θ) = [[c, 0, s], [0, 1, 0], [−s, 0, c]]
+    c, s = np.cos(theta), np.sin(theta)
+    Ry = np.array([[c, 0.0, s], [0.0, 1.0, 0.0], [-s, 0.0, c]])
+    off_plane = {
+        "position y": abs(p[1]),
+        "rotation (not about y)": float(np.abs(R - Ry).max()),
+        "twist v_y": abs(v[1]),
+        "twist ω_x, ω_z": max(abs(v[3]), abs(v[5])),
+    }
+    for what, err in off_plane.items():
+        if err > _PLANAR_TOL:
+            raise ValueError(f"a planar robot moves in the x–z plane: {what} must be 0 (got {err:.3g})")
+    return np.array([p[2], p[0], theta]), np.array([v[2], v[0], v[4]])
+
+
+def _vector(x: ArrayLike, n: int, what: str) -> Array:
+    a = np.array(x, dtype=float).reshape(-1)
+    if a.shape != (n,) or not np.isfinite(a).all():
+        raise ValueError(f"{what} must be {n} finite numbers (got {np.asarray(x).tolist()})")
+    return a
+
+
+def _rotation(x: ArrayLike) -> Array:
+    R = np.array(x, dtype=float)
+    if R.shape != (3, 3) or not np.isfinite(R).all():
+        raise ValueError("rotation must be a finite 3×3 matrix")
+    err = float(np.abs(R.T @ R - np.eye(3)).max())
+    if err > _ORTHONORMAL_TOL or np.linalg.det(R) <= 0.0:
+        det = float(np.linalg.det(R))
+        raise ValueError(
+            f"rotation must be a proper rotation matrix (‖RᵀR − I‖ = {err:.3g}, det = {det:.3g})"
+        )
+    if err > 1e-14:  # hand DART the nearest rotation (polar decomposition), not an almost-rotation
+        U, _, Vt = np.linalg.svd(R)
+        R = U @ Vt
+    return R
+
+
+# --------------------------------------------------------------------------------------------------
+# The scenario's model and its state as a message
+
+
+def state_message(s: PlatformState, clamped: int) -> State:
+    return State(
+        step=s.step,
+        t=s.t,
+        pose=(*s.position.tolist(), *s.quaternion.tolist()),
+        twist=tuple(s.twist.tolist()),
+        cable_lengths=tuple(s.cable_lengths.tolist()),
+        tensions=tuple(s.tensions.tolist()),
+        clamped=clamped,
+    )
+
+
+def make_sim(scenario: Scenario) -> PlatformSim:
+    """The physics of the scenario's cable model (every model has PlatformSim's interface)."""
+    if scenario.cable_model == "ups":
+        from cdpr_sim.ups import UpsSim
+
+        return UpsSim(scenario.robot, scenario.dt, scenario.initial_position, scenario.initial_rotation)
+    if scenario.cable_model in ("elastic", "sag"):  # winch-driven cables: tension or length commands
+        from cdpr_sim.elastic import ElasticSim
+        from cdpr_sim.sag import SagSim
+
+        model = ElasticSim if scenario.cable_model == "elastic" else SagSim
+        return model.from_scenario(scenario)  # type: ignore[return-value]
+    return PlatformSim(scenario.robot, scenario.dt, scenario.initial_position, scenario.initial_rotation)

@@ -1,0 +1,93 @@
+"""Elastic cables: straight, massless, axially elastic and damped, wound on winches. No I/O.
+
+Force law (cable i, chord length l, its rate l̇, unstretched length l0 and its rate l̇0 set by the winch)
+--------------------------------------------------------------------------------------------------------
+    k = EA / l0                                   (N/m: a longer cable is softer)
+    f = max(0, k (l − l0) + c (l̇ − l̇0))   while l > l0,      f = 0 while l ≤ l0 (slack)
+
+``EA`` (N) is the axial stiffness (Young's modulus × metallic area), ``c`` (N·s/m) the damping of the
+stretch rate (with the winch still, ``c·l̇``). The force ``f d_i`` acts on the platform along the chord,
+towards the frame; the winch's drum feels the same f. A cable that would push (f < 0 while taut, when
+it shortens fast) pulls nothing. The static stretch of a cable holding f is ``l − l0 = f l0 / EA``.
+
+Winches, the two command modes (tensions: ideal torque-controlled winch, the applied tension is the
+command, ``l0 = l·EA/(EA + f)``; lengths: PID-driven drums whose angle sets l0) and the sub-stepped
+integration are :class:`cdpr_sim.winch.WinchSim`'s. With the shipped defaults (``EA`` = 1 MN, about a
+4 mm steel wire rope, ``c`` = 200 N·s/m, the default :class:`~cdpr_sim.winch.WinchParams`) and CAROCA at
+15 kg, the fastest modes are the drum on its cable (√(k r²/J + kp/J) ≈ 1.0·10³ rad/s) and the platform on
+its eight cables (≈ 370 rad/s, the stiffest direction of ``W diag(k) Wᵀ`` through M); their bound
+≈ 1.1·10³ rad/s makes :func:`~cdpr_sim.winch.substeps_for` pick 4 sub-steps at dt = 1 ms (h = 0.25 ms,
+ω h ≈ 0.27, explicit damping (c r² + kd + b) h / J ≈ 0.38): stable and accurate. A single step of 1 ms
+(ω dt ≈ 1.1, damping 1.5) would sit close to the explicit scheme's limits.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+from numpy.typing import ArrayLike
+
+from cdpr.config.scenario import SimSpec
+from cdpr.mechanics.rotation import Array
+from cdpr_sim.winch import CableForces, Geometry, WinchSim
+
+
+@dataclass(frozen=True)
+class ElasticParams:
+    """Axial stiffness ``EA`` (N) and damping (N·s/m) of every cable."""
+
+    EA: float = 1.0e6
+    damping: float = 200.0
+
+    def __post_init__(self) -> None:
+        if not (math.isfinite(self.EA) and self.EA > 0.0):
+            raise ValueError(f"EA must be a positive finite number of N (got {self.EA})")
+        if not (math.isfinite(self.damping) and self.damping >= 0.0):
+            raise ValueError(f"damping must be a finite number >= 0 N·s/m (got {self.damping})")
+
+
+def elastic_tensions(lengths: ArrayLike, rates: ArrayLike, l0: ArrayLike, l0_rates: ArrayLike, EA: float,
+                     damping: float) -> Array:
+    """Tensions (N) of straight elastic cables: ``max(0, EA/l0 (l − l0) + c (l̇ − l̇0))``, 0 when slack."""
+    l0 = np.asarray(l0, dtype=float)
+    stretch = np.asarray(lengths, dtype=float) - l0
+    f = (EA / l0) * stretch + damping * (np.asarray(rates, dtype=float) - np.asarray(l0_rates, dtype=float))
+    return np.where(stretch > 0.0, np.maximum(f, 0.0), 0.0)
+
+
+def unstretched_lengths(lengths: ArrayLike, tensions: ArrayLike, EA: float) -> Array:
+    """The unstretched lengths at which cables of these lengths hold these static tensions: l·EA/(EA + f).
+
+    The inverse of the static law ``f = EA (l − l0)/l0``; for f ≥ 0 it is in (0, l].
+    """
+    return np.asarray(lengths, dtype=float) * EA / (EA + np.asarray(tensions, dtype=float))
+
+
+class ElasticSim(WinchSim):
+    """The platform of ``robot`` on straight elastic cables (``params``), wound on winches (``winch``).
+
+    ``command``: ``"tensions"`` or ``"lengths"``; see :class:`cdpr_sim.winch.WinchSim` for the rest.
+    """
+
+    params_type = ElasticParams
+    params: ElasticParams
+
+    def _law(self, g: Geometry, l0: Array, l0_rate: Array) -> CableForces:
+        f = elastic_tensions(g.lengths, g.rates, l0, l0_rate, self.params.EA, self.params.damping)
+        return CableForces(f[:, None] * g.directions, f, f)
+
+    def _law_for_tension(self, g: Geometry, tensions: Array) -> tuple[CableForces, Array]:
+        f = np.asarray(tensions, dtype=float)
+        return CableForces(f[:, None] * g.directions, f, f), unstretched_lengths(g.lengths, f, self.params.EA)
+
+    @staticmethod
+    def _params(spec: SimSpec) -> ElasticParams:
+        return ElasticParams(**spec.elastic.model_dump())
+
+    def _stiffness(self, lengths: Array) -> Array:
+        return self.params.EA / np.asarray(lengths, dtype=float)
+
+    def _damping(self) -> float:
+        return self.params.damping

@@ -1,6 +1,0 @@
-"""`python -m cdpr` is the same as the `cdpr` command."""
-
-from cdpr.cli import main
-
-if __name__ == "__main__":
-    main()

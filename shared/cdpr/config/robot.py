@@ -1,0 +1,169 @@
+"""Robot files: YAML data checked by pydantic into a frozen :class:`~cdpr.mechanics.robot.Robot`.
+
+Errors name the file and the field (``file: dotted.field: message``); the command line turns them into
+exit code 2. The file format is documented in the shipped robots (``shared/cdpr/robots/*.yaml``).
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Annotated, Literal
+
+import numpy as np
+from pydantic import (
+    BaseModel,
+    ConfigDict,
+    Field,
+    FiniteFloat,
+    PositiveFloat,
+    field_validator,
+    model_validator,
+)
+
+from cdpr.config.loading import parse_model, read_yaml, resolve, shipped_names
+from cdpr.mechanics.robot import Mode, Robot, Shape, check_robot, frozen_array
+from cdpr.mechanics.rotation import rpy_to_matrix
+
+Vec3 = Annotated[list[FiniteFloat], Field(min_length=3, max_length=3)]
+
+
+class _Strict(BaseModel):
+    model_config = ConfigDict(extra="forbid", frozen=True)
+
+
+class ShapeSpec(_Strict):
+    type: Literal["box", "sphere", "cylinder"]
+    size: list[PositiveFloat] = Field(
+        description="box: [x, y, z] edge lengths; sphere: [radius]; cylinder: [radius, length along z]"
+    )
+
+    @model_validator(mode="after")
+    def _size_matches_type(self) -> ShapeSpec:
+        want = {"box": 3, "sphere": 1, "cylinder": 2}[self.type]
+        if len(self.size) != want:
+            raise ValueError(f"a {self.type} needs {want} size value(s), got {len(self.size)}")
+        return self
+
+
+class PlatformSpec(_Strict):
+    mass: FiniteFloat
+    inertia: list[FiniteFloat] | list[list[FiniteFloat]] = Field(
+        description="principal moments [Ixx, Iyy, Izz] or a full symmetric 3×3 matrix, about the centre of mass"
+    )
+    shape: ShapeSpec
+
+    @field_validator("mass")
+    @classmethod
+    def _mass_positive(cls, v: float) -> float:
+        if v <= 0.0:
+            raise ValueError(f"must be > 0 (got {v})")
+        return v
+
+    @field_validator("inertia")
+    @classmethod
+    def _inertia_spd(cls, v: list[float] | list[list[float]]) -> list[float] | list[list[float]]:
+        I = np.asarray(v, dtype=float)
+        if I.shape == (3,):
+            I = np.diag(I)
+        if I.shape != (3, 3):
+            raise ValueError(f"must be 3 principal moments or a 3×3 matrix (got shape {I.shape})")
+        if not np.allclose(I, I.T, atol=1e-9):
+            raise ValueError("must be symmetric")
+        if np.linalg.eigvalsh(I).min() <= 0.0:
+            raise ValueError("must be positive definite")
+        return v
+
+
+class CableLimitsSpec(_Strict):
+    tmin: FiniteFloat = Field(ge=0.0, description="lowest tension a cable may be commanded, N")
+    tmax: PositiveFloat = Field(description="highest tension, N")
+    max_length: PositiveFloat = Field(description="longest cable length the winch holds, m")
+    max_speed: PositiveFloat = Field(description="fastest cable length rate, m/s")
+
+    @model_validator(mode="after")
+    def _ordered(self) -> CableLimitsSpec:
+        if self.tmin > self.tmax:
+            raise ValueError(f"tmin ({self.tmin}) must not exceed tmax ({self.tmax})")
+        return self
+
+
+class CableSpec(_Strict):
+    frame: Vec3 = Field(description="a_i, frame (world) attach point")
+    platform: Vec3 = Field(description="b_i, platform attach point in the platform frame")
+
+
+class DampingSpec(_Strict):
+    cable: FiniteFloat = Field(0.0, ge=0.0, description="viscous damping along each cable, N·s/m")
+    passive: FiniteFloat = Field(0.0, ge=0.0, description="damping of the passive U and S joints, N·m·s/rad")
+
+
+class HomeSpec(_Strict):
+    position: Vec3
+    rpy: Vec3 = Field(default_factory=lambda: [0.0, 0.0, 0.0])
+
+
+class FrameBoxSpec(_Strict):
+    min: Vec3
+    max: Vec3
+
+    @model_validator(mode="after")
+    def _ordered(self) -> FrameBoxSpec:
+        if any(lo >= hi for lo, hi in zip(self.min, self.max, strict=True)):
+            raise ValueError("min must be below max on every axis")
+        return self
+
+
+class RobotSpec(_Strict):
+    name: str
+    description: str = ""
+    source: str = Field(description="where the numbers come from")
+    mode: Mode = "spatial"
+    platform: PlatformSpec
+    limits: CableLimitsSpec
+    cables: list[CableSpec] = Field(min_length=1)
+    damping: DampingSpec = Field(default_factory=DampingSpec)
+    home: HomeSpec
+    frame_box: FrameBoxSpec
+
+
+def robot_from_spec(spec: RobotSpec, where: str) -> Robot:
+    """Build and check a Robot; ``where`` names the file in errors."""
+    inertia = np.asarray(spec.platform.inertia, dtype=float)
+    if inertia.shape == (3,):
+        inertia = np.diag(inertia)
+    a = np.array([c.frame for c in spec.cables])
+    b = np.array([c.platform for c in spec.cables])
+    robot = Robot(
+        name=spec.name,
+        description=spec.description,
+        source=spec.source,
+        mode=spec.mode,
+        frame_points=frozen_array(a),
+        platform_points=frozen_array(b),
+        mass=spec.platform.mass,
+        inertia=frozen_array(inertia),
+        shape=Shape(spec.platform.shape.type, tuple(spec.platform.shape.size)),
+        tmin=spec.limits.tmin,
+        tmax=spec.limits.tmax,
+        max_length=spec.limits.max_length,
+        max_speed=spec.limits.max_speed,
+        cable_damping=spec.damping.cable,
+        passive_damping=spec.damping.passive,
+        home_position=frozen_array(spec.home.position),
+        home_rotation=frozen_array(rpy_to_matrix(*spec.home.rpy)),
+        frame_min=frozen_array(spec.frame_box.min),
+        frame_max=frozen_array(spec.frame_box.max),
+    )
+    check_robot(robot, where)
+    return robot
+
+
+def load_robot(name_or_path: str | Path) -> Robot:
+    """A shipped robot name (``caroca``) or a path to a robot YAML file → a validated Robot."""
+    path = resolve(name_or_path, "robots", "robot")
+    spec = parse_model(RobotSpec, read_yaml(path), path)
+    return robot_from_spec(spec, str(path))
+
+
+def shipped_robots() -> list[str]:
+    return shipped_names("robots")

@@ -1,0 +1,305 @@
+"""Scenarios: one YAML file says which robot, which trajectory, which controller, for how long.
+
+Like robot files, scenarios are data, validated at load into a frozen :class:`Scenario`; a bad file
+raises :class:`cdpr.errors.InputError` naming the file and the field. Shipped scenarios live in
+``cdpr/scenarios/`` (the repository's ``shared/cdpr/scenarios/``).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any, Literal
+
+import numpy as np
+from pydantic import (
+    BaseModel,
+    ConfigDict,
+    Field,
+    FiniteFloat,
+    PositiveFloat,
+    field_validator,
+    model_validator,
+)
+
+from cdpr.config.loading import parse_model, read_yaml, resolve, shipped_names
+from cdpr.config.robot import load_robot
+from cdpr.config.trajectory import TrajectorySpec
+from cdpr.errors import InputError
+from cdpr.mechanics.control import Gains, Variant
+from cdpr.mechanics.robot import Robot
+from cdpr.mechanics.rotation import rpy_to_matrix
+from cdpr.mechanics.trajectory import Trajectory
+
+
+class _Strict(BaseModel):
+    model_config = ConfigDict(extra="forbid", frozen=True)
+
+
+class PlatformOverride(_Strict):
+    mass: PositiveFloat | None = Field(None, description="whole platform mass; inertia becomes the solid shape's")
+    payload: FiniteFloat = Field(0.0, ge=0.0, description="point mass rigidly attached at the centre of mass, kg")
+
+
+class LimitsOverride(_Strict):
+    tmin: FiniteFloat | None = Field(None, ge=0.0)
+    tmax: PositiveFloat | None = None
+
+
+class TdaSpec(_Strict):
+    method: str = "qp"
+    options: dict[str, Any] = Field(default_factory=dict)
+
+    @field_validator("method")
+    @classmethod
+    def _known(cls, v: str) -> str:
+        from cdpr.mechanics.tda import METHODS
+
+        if v not in METHODS:
+            raise ValueError(f"unknown TDA method {v!r} (known: {', '.join(sorted(METHODS))})")
+        return v
+
+
+Gain = FiniteFloat | list[FiniteFloat]
+
+
+class ControllerSpec(_Strict):
+    variant: Literal["6dof", "3dof"] = "6dof"
+    kp: Gain = 1500.0
+    kd: Gain = 1500.0
+    tda: TdaSpec = Field(default_factory=TdaSpec)
+    output: Literal["tensions", "lengths"] = Field(
+        "tensions",
+        description="what the controller commands: cable tensions, or unstretched cable lengths (winch "
+        "position control; needs sim.cable_model elastic or sag)",
+    )
+
+    @field_validator("kp", "kd")
+    @classmethod
+    def _six(cls, v: float | list[float]) -> float | list[float]:
+        if isinstance(v, list) and len(v) != 6:
+            raise ValueError(f"a gain is one number or 6 numbers [x, y, z, rx, ry, rz], got {len(v)}")
+        if np.any(np.asarray(v) < 0):
+            raise ValueError("gains must be >= 0")
+        return v
+
+
+class ElasticSpec(_Strict):
+    """Straight elastic cables (cdpr_sim.elastic)."""
+
+    EA: PositiveFloat = Field(1.0e6, description="axial stiffness, N (k = EA / l0)")
+    damping: FiniteFloat = Field(200.0, ge=0.0, description="damping of the stretch rate, N·s/m")
+
+
+class SagSpec(_Strict):
+    """Heavy elastic cables hanging as Irvine's elastic catenary (cdpr_sim.sag)."""
+
+    mass_per_length: PositiveFloat = Field(0.1, description="kg/m")
+    EA: PositiveFloat = Field(1.0e6, description="axial stiffness, N")
+    damping: FiniteFloat = Field(200.0, ge=0.0, description="damping of the stretch rate, N·s/m")
+    tension_at: Literal["platform", "frame"] = Field("platform", description="where a tension command holds")
+
+
+class WinchSpec(_Strict):
+    """The winch drives of the elastic and sag models (cdpr_sim.winch.WinchParams)."""
+
+    radius: PositiveFloat = Field(0.05, description="drum radius, m")
+    inertia: PositiveFloat = Field(1e-3, description="rotor and drum inertia about the drum axis, kg·m²")
+    friction: FiniteFloat = Field(0.01, ge=0.0, description="viscous friction, N·m·s/rad")
+    torque_max: PositiveFloat = Field(50.0, description="torque (current) limit, N·m")
+    kp: FiniteFloat = Field(400.0, ge=0.0, description="PID on the drum angle, N·m/rad")
+    ki: FiniteFloat = Field(8000.0, ge=0.0, description="N·m/(rad·s)")
+    kd: FiniteFloat = Field(1.0, ge=0.0, description="N·m·s/rad")
+
+
+Bias = FiniteFloat | list[FiniteFloat]
+
+
+class EncoderSpec(_Strict):
+    resolution: FiniteFloat = Field(0.0, ge=0.0, description="quantisation step, m (0: none)")
+    sigma: FiniteFloat = Field(0.0, ge=0.0, description="white noise, m")
+
+
+class LoadCellSpec(_Strict):
+    sigma: FiniteFloat = Field(0.0, ge=0.0, description="white noise, N")
+    bias: Bias = Field(0.0, description="N: one number for every cell or one per cable")
+
+
+class ImuSpec(_Strict):
+    accel_sigma: FiniteFloat = Field(0.0, ge=0.0, description="m/s²")
+    accel_bias: Bias = Field(0.0, description="m/s², body frame: one number or [x, y, z]")
+    gyro_sigma: FiniteFloat = Field(0.0, ge=0.0, description="rad/s")
+    gyro_bias: Bias = Field(0.0, description="rad/s, body frame: one number or [x, y, z]")
+
+    @field_validator("accel_bias", "gyro_bias")
+    @classmethod
+    def _three(cls, v: float | list[float]) -> float | list[float]:
+        if isinstance(v, list) and len(v) != 3:
+            raise ValueError(f"a bias is one number or 3 numbers [x, y, z], got {len(v)}")
+        return v
+
+
+class SensorsSpec(_Strict):
+    """Simulated sensors, published on sim/sensors (cdpr_sim.sensors)."""
+
+    seed: int = Field(0, ge=0, description="seed of the noise (a reading is a function of seed and step)")
+    encoders: EncoderSpec = Field(default_factory=EncoderSpec)
+    load_cells: LoadCellSpec = Field(default_factory=LoadCellSpec)
+    imu: ImuSpec = Field(default_factory=ImuSpec)
+
+
+class SimSpec(_Strict):
+    cable_model: Literal["ideal", "ups", "elastic", "sag"] = Field(
+        "ideal",
+        description="ideal: massless inextensible pull-only force elements; ups: the seed paper's "
+        "universal-prismatic-spherical legs closed with ball-joint constraints; elastic: straight elastic "
+        "cables on winches; sag: heavy elastic cables (elastic catenary) on winches",
+    )
+    elastic: ElasticSpec = Field(default_factory=ElasticSpec)
+    sag: SagSpec = Field(default_factory=SagSpec)
+    winch: WinchSpec = Field(default_factory=WinchSpec)
+    substeps: int | None = Field(None, ge=1, description="sub-steps per dt in lengths mode (default: chosen "
+                                 "for stability and accuracy from the cables' stiffness)")
+    sensors: SensorsSpec | None = Field(None, description="publish simulated sensor readings on sim/sensors")
+
+    @model_validator(mode="after")
+    def _params_match_model(self) -> SimSpec:
+        for name, models in (("elastic", ("elastic",)), ("sag", ("sag",)), ("winch", ("elastic", "sag")),
+                             ("substeps", ("elastic", "sag"))):
+            if name in self.model_fields_set and self.cable_model not in models:
+                raise ValueError(f"{name}: used by cable_model {' or '.join(models)} only "
+                                 f"(this scenario's is {self.cable_model})")
+        return self
+
+
+class InitialSpec(_Strict):
+    position: list[FiniteFloat] = Field(min_length=3, max_length=3)
+    rpy: list[FiniteFloat] = Field(default_factory=lambda: [0.0, 0.0, 0.0], min_length=3, max_length=3)
+
+
+class ScenarioSpec(_Strict):
+    name: str
+    description: str = ""
+    robot: str
+    platform: PlatformOverride = Field(default_factory=PlatformOverride)
+    limits: LimitsOverride = Field(default_factory=LimitsOverride)
+    dt: PositiveFloat = 0.001
+    duration: PositiveFloat | None = Field(None, description="default: the trajectory's duration plus 1 s")
+    initial: InitialSpec | None = Field(None, description="default: the trajectory's first pose, at rest")
+    trajectory: TrajectorySpec
+    controller: ControllerSpec = Field(default_factory=ControllerSpec)
+    sim: SimSpec = Field(default_factory=SimSpec)
+
+    @model_validator(mode="after")
+    def _dt_sane(self) -> ScenarioSpec:
+        if self.dt > 0.1:
+            raise ValueError(f"dt: {self.dt} s is too coarse for a cable robot (at most 0.1)")
+        if self.controller.output == "lengths" and self.sim.cable_model not in ("elastic", "sag"):
+            raise ValueError(f"controller.output: lengths needs sim.cable_model elastic or sag (winch-driven "
+                             f"cables), not {self.sim.cable_model}")
+        return self
+
+
+@dataclass(frozen=True)
+class Scenario:
+    name: str
+    description: str
+    source: str  # the file it came from
+    robot: Robot  # with the scenario's mass/payload and limits applied
+    dt: float
+    duration: float
+    initial_position: np.ndarray
+    initial_rotation: np.ndarray
+    trajectory: Trajectory
+    variant: Variant
+    gains: Gains
+    tda_method: str
+    tda_options: dict[str, Any]
+    cable_model: str
+    spec: ScenarioSpec
+
+    @property
+    def total_steps(self) -> int:
+        return round(self.duration / self.dt)
+
+    @property
+    def output(self) -> str:
+        """What the controller commands: ``tensions`` or ``lengths`` (unstretched cable lengths)."""
+        return self.spec.controller.output
+
+
+def scenario_from_spec(spec: ScenarioSpec, where: str, base_dir: Path | None = None) -> Scenario:
+    robot_ref = spec.robot
+    if base_dir is not None and robot_ref.endswith((".yaml", ".yml")) and not Path(robot_ref).is_absolute():
+        robot_ref = str(base_dir / robot_ref)
+    try:
+        robot = load_robot(robot_ref)
+    except InputError as exc:
+        raise InputError(f"{where}: robot: {exc}") from None
+    if spec.platform.mass is not None:
+        robot = robot.with_mass(spec.platform.mass)
+    robot = robot.with_payload(spec.platform.payload)
+    tmin = robot.tmin if spec.limits.tmin is None else spec.limits.tmin
+    tmax = robot.tmax if spec.limits.tmax is None else spec.limits.tmax
+    if tmin > tmax:
+        raise InputError(f"{where}: limits: tmin ({tmin}) must not exceed tmax ({tmax})")
+    robot = robot.replace(tmin=float(tmin), tmax=float(tmax))
+    bias = spec.sim.sensors.load_cells.bias if spec.sim.sensors is not None else 0.0
+    if isinstance(bias, list) and len(bias) != robot.m:
+        raise InputError(f"{where}: sim.sensors.load_cells.bias: expected one number or {robot.m} (one per "
+                         f"cable), got {len(bias)}")
+    try:
+        trajectory = spec.trajectory.build()
+    except ValueError as exc:
+        raise InputError(f"{where}: trajectory: {exc}") from None
+    from cdpr.mechanics.workspace import check_trajectory
+
+    check_trajectory(robot, trajectory, spec.controller.variant, where)  # static and feed-forward wrenches
+    from cdpr.mechanics.tda import make_tda
+
+    try:
+        make_tda(spec.controller.tda.method, **spec.controller.tda.options)
+    except (TypeError, ValueError) as exc:
+        raise InputError(f"{where}: controller.tda.options: {str(exc).splitlines()[0]}") from None
+    duration = spec.duration if spec.duration is not None else trajectory.duration + 1.0
+    if spec.initial is not None:
+        p0 = np.array(spec.initial.position, dtype=float)
+        R0 = rpy_to_matrix(*spec.initial.rpy)
+    else:
+        first = trajectory.sample(0.0)
+        p0, R0 = first.position.copy(), first.rotation.copy()
+    steps = round(duration / spec.dt)
+    if steps < 1:
+        raise InputError(f"{where}: duration: shorter than one step of dt = {spec.dt}")
+    return Scenario(
+        name=spec.name,
+        description=spec.description,
+        source=where,
+        robot=robot,
+        dt=float(spec.dt),
+        duration=float(duration),
+        initial_position=p0,
+        initial_rotation=R0,
+        trajectory=trajectory,
+        variant=spec.controller.variant,
+        gains=Gains.of(spec.controller.kp, spec.controller.kd),
+        tda_method=spec.controller.tda.method,
+        tda_options=dict(spec.controller.tda.options),
+        cable_model=spec.sim.cable_model,
+        spec=spec,
+    )
+
+
+def load_scenario(name_or_path: str | Path, overrides: dict[str, Any] | None = None) -> Scenario:
+    """A shipped scenario name or a YAML path, plus optional top-level overrides (e.g. ``{"duration": 2}``)."""
+    path = resolve(name_or_path, "scenarios", "scenario")
+    data = read_yaml(path)
+    for key, value in (overrides or {}).items():
+        if value is not None:
+            data[key] = value
+    spec = parse_model(ScenarioSpec, data, path)
+    return scenario_from_spec(spec, str(path), path.parent)
+
+
+def shipped_scenarios() -> list[str]:
+    return shipped_names("scenarios")

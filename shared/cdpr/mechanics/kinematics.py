@@ -1,0 +1,155 @@
+"""Cable kinematics (seed paper eq. 2–4). Pure numpy, no I/O.
+
+Sign convention, stated once for the whole project
+--------------------------------------------------
+* Cable vector (eq. 2): ``l_i = a_i − t − R b_i``, pointing from the platform to the frame.
+  Length ``‖l_i‖``, unit vector ``d_i = l_i / ‖l_i‖``.
+* Length Jacobian (eq. 3–4): ``l̇ = J v`` with the twist ``v = [ṫ; ω]`` (world frame, linear first)
+  and row i of J equal to ``[−d_iᵀ, (d_i × R b_i)ᵀ]``, exactly as in the paper.
+* Wrench matrix: ``W f`` is the wrench ``[force; moment about the centre of mass]`` (world frame) that
+  the tensions ``f ≥ 0`` exert on the platform. Column i is ``[d_i; (R b_i) × d_i]``, so ``W = −Jᵀ``:
+  the paper writes ``W = Jᵀ`` and absorbs the minus sign into its wrench, we keep it visible here.
+  Equilibrium of eq. 5 then reads ``M ẍ + C ẋ = W f + w_g + w_e``.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import TYPE_CHECKING
+
+import numpy as np
+from numpy.typing import ArrayLike
+
+from cdpr.mechanics.rotation import Array, cross_rows, rotvec_to_matrix
+
+if TYPE_CHECKING:
+    from cdpr.mechanics.robot import Robot
+
+
+@dataclass(frozen=True)
+class CableKinematics:
+    vectors: Array  # (m, 3) l_i, platform → frame
+    lengths: Array  # (m,)
+    directions: Array  # (m, 3) unit d_i
+    platform_points_world: Array  # (m, 3) t + R b_i
+    wrench_matrix: Array  # (6, m) W = −Jᵀ
+
+    @property
+    def jacobian(self) -> Array:
+        """Length Jacobian J (m × 6) of eq. 4: l̇ = J v."""
+        return -self.wrench_matrix.T
+
+
+def _chords(frame_points: Array, platform_points: Array, position: Array, R: Array
+            ) -> tuple[Array, Array, Array, Array, Array]:
+    """Eq. 2 for every cable: ``(arms R b_i, vectors l_i, lengths, unit d_i, moments (R b_i) × d_i)``.
+    The one place the cable geometry is computed; a zero length gives NaN directions (and a numpy
+    warning, which callers that expect it silence)."""
+    arms = platform_points @ R.T  # (m, 3) rows R b_i
+    vectors = frame_points - position - arms  # rows l_i, platform → frame
+    lengths = np.sqrt(np.einsum("ij,ij->i", vectors, vectors))
+    d = vectors / lengths[:, None]
+    return arms, vectors, lengths, d, cross_rows(arms, d)
+
+
+def _wrench_matrix(d: Array, moments: Array) -> Array:
+    W = np.empty((6, len(d)))
+    W[:3] = d.T
+    W[3:] = moments.T
+    return W
+
+
+def cable_kinematics(frame_points: Array, platform_points: Array, position: ArrayLike, R: ArrayLike) -> CableKinematics:
+    """Eq. 2–4 for arbitrary attach points (vectorised over cables)."""
+    t = np.asarray(position, dtype=float)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        arms, vectors, lengths, d, moments = _chords(frame_points, platform_points, t, np.asarray(R, dtype=float))
+    return CableKinematics(vectors, lengths, d, t + arms, _wrench_matrix(d, moments))
+
+
+class WrenchMatrix:
+    """The wrench matrix W (6×m) of one robot at any pose, with the attach points set up once.
+
+    ``W(position, R)`` equals ``inverse_kinematics(robot, position, R).wrench_matrix`` bit for bit,
+    without the other outputs of :func:`cable_kinematics` (for the controller's every step).
+    """
+
+    def __init__(self, robot: Robot) -> None:
+        self._a = np.array(robot.frame_points, dtype=float)
+        self._b = np.array(robot.platform_points, dtype=float)
+
+    def __call__(self, position: ArrayLike, R: ArrayLike) -> Array:
+        _, _, _, d, moments = _chords(self._a, self._b, np.asarray(position, dtype=float), np.asarray(R, dtype=float))
+        return _wrench_matrix(d, moments)
+
+
+def cable_geometry(
+    frame_points: Array, platform_points: Array, position: Array, R: Array, v: Array, omega: Array
+) -> tuple[Array, Array, Array, Array, Array]:
+    """The cables of a moving platform: ``(arms, lengths, directions, moments, rates)``.
+
+    ``arms`` (m, 3) are R b_i, ``lengths`` (m,) ‖l_i‖, ``directions`` (m, 3) the unit d_i (rows of W's
+    force block), ``moments`` (m, 3) (R b_i) × d_i (rows of W's moment block) and ``rates`` (m,) the
+    length rates l̇ = J v = −(d_i · v + ((R b_i) × d_i) · ω), for the platform at (position, R) moving
+    with linear velocity ``v`` and angular velocity ``omega`` (world frame). What a simulator reads
+    off its body every step; no checks (the lengths must not be zero).
+    """
+    arms, _, lengths, d, moments = _chords(frame_points, platform_points, position, R)
+    return arms, lengths, d, moments, -(d @ v + moments @ omega)
+
+
+def inverse_kinematics(robot: Robot, position: ArrayLike, R: ArrayLike | None = None) -> CableKinematics:
+    """Cable vectors, lengths, unit vectors and wrench matrix of ``robot`` at pose (position, R)."""
+    return cable_kinematics(robot.frame_points, robot.platform_points, position, np.eye(3) if R is None else R)
+
+
+def cable_length_rates(kin: CableKinematics, twist: ArrayLike) -> Array:
+    """l̇ = J v for a world-frame twist [v; ω]."""
+    return kin.jacobian @ np.asarray(twist, dtype=float)
+
+
+@dataclass(frozen=True)
+class ForwardKinematicsResult:
+    position: Array
+    rotation: Array
+    residual: float  # max |l(x) − l| over cables, m
+    converged: bool
+
+
+def forward_kinematics(
+    robot: Robot,
+    lengths: ArrayLike,
+    guess_position: ArrayLike | None = None,
+    guess_rotation: ArrayLike | None = None,
+    tol: float = 1e-10,
+) -> ForwardKinematicsResult:
+    """Pose whose cable lengths are ``lengths`` (numerical: Levenberg–Marquardt from a guess).
+
+    With more cables than DOF the lengths over-determine the pose; the result is the least-squares
+    pose and ``residual`` says how far the lengths are from consistent. Point-mass robots solve for the
+    position only; planar robots for x, z and the rotation about y.
+    """
+    target = np.asarray(lengths, dtype=float)
+    p0 = np.asarray(robot.home_position if guess_position is None else guess_position, dtype=float)
+    R0 = np.asarray(robot.home_rotation if guess_rotation is None else guess_rotation, dtype=float)
+
+    def unpack(x: Array) -> tuple[Array, Array]:
+        if robot.mode == "point_mass":
+            return x, R0
+        if robot.mode == "planar":
+            return np.array([x[0], p0[1], x[1]]), rotvec_to_matrix([0.0, x[2], 0.0]) @ R0
+        return x[:3], rotvec_to_matrix(x[3:]) @ R0
+
+    def residual(x: Array) -> Array:
+        p, R = unpack(x)
+        return cable_kinematics(robot.frame_points, robot.platform_points, p, R).lengths - target
+
+    x0 = {"point_mass": p0.copy(), "planar": np.array([p0[0], p0[2], 0.0]), "spatial": np.r_[p0, 0.0, 0.0, 0.0]}[
+        robot.mode
+    ]
+    from scipy.optimize import least_squares  # only forward kinematics needs scipy
+
+    sol = least_squares(residual, x0, method="lm", xtol=tol, ftol=tol, gtol=tol, max_nfev=2000)
+    p, R = unpack(sol.x)
+    err = float(np.abs(residual(sol.x)).max())
+    return ForwardKinematicsResult(p, R, err, bool(sol.success) and err < 1e-6)

@@ -1,0 +1,157 @@
+"""The robot as the mechanics sees it: a frozen :class:`Robot` (geometry, mass, limits), no I/O.
+
+A robot is a rigid platform hung from a fixed frame by m cables. Cable i joins the frame point a_i
+(world frame) to the platform point b_i (platform frame, origin at the platform's centre of mass).
+Everything is SI: m, kg, kg·m², N, s. Robot files are read into it by :mod:`cdpr.config.robot`.
+
+Three modes:
+
+* ``spatial``: 6-DOF platform (x, y, z, and orientation).
+* ``point_mass``: all cables meet at the centre of mass; 3 translational DOF are controlled.
+* ``planar``: the platform moves in the vertical x–z plane (x, z, rotation about y); every point has
+  y = 0. Gravity acts along −z in every mode.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from dataclasses import dataclass
+from typing import Literal
+
+import numpy as np
+
+from cdpr.errors import InputError
+from cdpr.mechanics.rotation import Array
+
+Mode = Literal["spatial", "point_mass", "planar"]
+GRAVITY = np.array([0.0, 0.0, -9.81])
+
+
+DOF = {"spatial": 6, "point_mass": 3, "planar": 3}
+# Rows of the 6×m wrench matrix that the controller acts on, per mode: [fx fy fz mx my mz].
+CONTROLLED_ROWS = {"spatial": (0, 1, 2, 3, 4, 5), "point_mass": (0, 1, 2), "planar": (0, 2, 4)}
+
+
+def frozen_array(a: Array) -> Array:
+    a = np.array(a, dtype=float)
+    a.flags.writeable = False
+    return a
+
+
+@dataclass(frozen=True)
+class Shape:
+    type: str
+    size: tuple[float, ...]
+
+    def box_inertia(self, mass: float) -> Array:
+        """Inertia of a solid body of this shape and the given mass about its centre."""
+        if self.type == "box":
+            x, y, z = self.size
+            return np.diag([y * y + z * z, x * x + z * z, x * x + y * y]) * mass / 12.0
+        if self.type == "sphere":
+            (r,) = self.size
+            return np.eye(3) * 0.4 * mass * r * r
+        r, h = self.size
+        ixx = mass * (3 * r * r + h * h) / 12.0
+        return np.diag([ixx, ixx, 0.5 * mass * r * r])
+
+
+@dataclass(frozen=True)
+class Robot:
+    """A validated robot. Arrays are read-only; use :meth:`replace` for variants."""
+
+    name: str
+    description: str
+    source: str
+    mode: Mode
+    frame_points: Array  # (m, 3) a_i, world frame
+    platform_points: Array  # (m, 3) b_i, platform frame
+    mass: float
+    inertia: Array  # (3, 3) about the centre of mass, platform frame
+    shape: Shape
+    tmin: float
+    tmax: float
+    max_length: float
+    max_speed: float
+    cable_damping: float
+    passive_damping: float
+    home_position: Array  # (3,)
+    home_rotation: Array  # (3, 3)
+    frame_min: Array
+    frame_max: Array
+
+    @property
+    def m(self) -> int:
+        """Number of cables."""
+        return int(self.frame_points.shape[0])
+
+    @property
+    def dof(self) -> int:
+        """Number of controlled degrees of freedom."""
+        return DOF[self.mode]
+
+    @property
+    def controlled_rows(self) -> tuple[int, ...]:
+        return CONTROLLED_ROWS[self.mode]
+
+    def replace(self, **changes: object) -> Robot:
+        frozen = {k: frozen_array(v) if isinstance(v, np.ndarray) else v for k, v in changes.items()}
+        return dataclasses.replace(self, **frozen)
+
+    def with_mass(self, mass: float) -> Robot:
+        """The same robot whose whole platform has this mass, with the solid-shape inertia for it."""
+        if not 0.0 < mass < np.inf:
+            raise InputError(f"platform mass must be finite and > 0 (got {mass})")
+        return self.replace(mass=float(mass), inertia=self.shape.box_inertia(mass))
+
+    def with_payload(self, payload: float) -> Robot:
+        """A point-mass payload rigidly attached at the centre of mass: mass grows, inertia is unchanged."""
+        if not 0.0 <= payload < np.inf:
+            raise InputError(f"payload must be finite and >= 0 (got {payload})")
+        return self.replace(mass=self.mass + float(payload))
+
+    def summary(self) -> dict[str, object]:
+        return {
+            "name": self.name,
+            "description": self.description,
+            "source": self.source,
+            "mode": self.mode,
+            "cables": self.m,
+            "dof": self.dof,
+            "mass": self.mass,
+            "inertia": self.inertia.tolist(),
+            "shape": {"type": self.shape.type, "size": list(self.shape.size)},
+            "tension_limits": [self.tmin, self.tmax],
+            "max_length": self.max_length,
+            "max_speed": self.max_speed,
+            "home": {"position": self.home_position.tolist(), "rotation": self.home_rotation.tolist()},
+            "frame_points": self.frame_points.tolist(),
+            "platform_points": self.platform_points.tolist(),
+        }
+
+
+def check_robot(robot: Robot, where: str) -> None:
+    """Checks that need the whole robot: mode-specific geometry and the wrench matrix's rank."""
+    from cdpr.mechanics.kinematics import inverse_kinematics  # kinematics imports this module's types
+
+    if robot.m < robot.dof:
+        raise InputError(
+            f"{where}: cables: {robot.m} cable(s) cannot control the {robot.dof} DOF of a {robot.mode} robot"
+        )
+    if robot.mode == "point_mass" and np.abs(robot.platform_points).max() > 1e-12:
+        raise InputError(f"{where}: cables: a point_mass robot needs every platform point at [0, 0, 0]")
+    if robot.mode == "planar":
+        pts = np.vstack([robot.frame_points, robot.platform_points, robot.home_position[None, :]])
+        if np.abs(pts[:, 1]).max() > 1e-12:
+            raise InputError(f"{where}: cables: a planar robot lives in the x–z plane: every y must be 0")
+    ik = inverse_kinematics(robot, robot.home_position, robot.home_rotation)
+    if np.any(ik.lengths < 1e-9):
+        i = int(np.argmin(ik.lengths))
+        raise InputError(f"{where}: cables.{i}: zero cable length at the home pose")
+    W = ik.wrench_matrix[list(robot.controlled_rows), :]
+    rank = int(np.linalg.matrix_rank(W, tol=1e-9 * max(1.0, float(np.abs(W).max()))))
+    if rank < robot.dof:
+        raise InputError(
+            f"{where}: cables: the wrench matrix has rank {rank} < {robot.dof} at the home pose "
+            "(the cables cannot hold the platform there)"
+        )

@@ -1,0 +1,323 @@
+"""Desired-pose trajectories: 5th-order polynomial waypoints and the pick-and-place S-curve.
+
+Pure numpy, no I/O. A :class:`Trajectory` maps a time ``t`` (s) to a :class:`Setpoint`: the desired
+pose of the platform's centre of mass, its twist ``[v; ω]`` and its acceleration ``[a; α]``, all in the
+world frame (the controller's x_d, ẋ_d, ẍ_d of the seed paper, section 4.1). Before the first waypoint
+the first pose is held, after the last one the final pose is held, both with zero twist and acceleration.
+
+Interpolation (:class:`QuinticWaypoints`)
+-----------------------------------------
+Between waypoints a (at t_a) and b (at t_b), with h = t_b − t_a and τ = (t − t_a)/h ∈ [0, 1]::
+
+    s(τ) = 10τ³ − 15τ⁴ + 6τ⁵        ṡ = 30τ²(1 − τ)²/h        s̈ = 60τ(1 − τ)(1 − 2τ)/h²
+    x(t) = x_a + (x_b − x_a)·s       R(t) = R_a · exp(s·[r]×),  r = log(R_aᵀ R_b)
+
+so velocity and acceleration are zero at every waypoint, and position, velocity and acceleration are
+continuous everywhere. The orientation follows the shortest geodesic on SO(3) (rotation angle ≤ π).
+Because ``exp(s[r]×) r = r``, the world-frame angular velocity and acceleration are simply
+``ω = R_a r ṡ`` and ``α = R_a r s̈`` (a fixed axis per segment).
+
+Scenario YAML schema (:func:`trajectory_from_spec`, :class:`TrajectorySpec`)
+---------------------------------------------------------------------------
+Units are SI, angles are radians, roll-pitch-yaw as in :mod:`cdpr.mechanics.rotation`. Two forms, chosen by ``type``::
+
+    type: quintic
+    waypoints:                      # at least 2, times strictly increasing
+      - {t: 0.0,  position: [0, 0, 0.2], rpy: [0, 0, 0]}
+      - {t: 10.0, position: [0, 0, 1.2]}          # rpy omitted: keep the previous waypoint's
+      - {t: 20.0, position: [0.9, 0.9, 1.2], rpy: [0, 0, 0.3]}
+
+    type: scurve                    # lift vertically, travel, lower vertically
+    start: [0.9, 0.9, 0.2]
+    goal: [-0.9, -0.9, 1.0]
+    pass_height: 1.3                # absolute travel height, or [0.6, 1.3]: height above start, above goal
+    # lift_height: 0.5              # instead of pass_height: travel at start z + lift_height
+    t_start: 0.0                    # optional, default 0: the motion starts here
+    times: [5.0, 25.0, 30.0]        # absolute end times of the lift, travel and lower phases
+    start_rpy: [0, 0, 0]            # optional, default [0, 0, 0]
+    goal_rpy: [0, 0, 0]             # optional, default start_rpy; the rotation happens during travel
+
+Unknown keys, missing keys, non-finite numbers and inconsistent values raise ``ValueError`` naming the
+field, e.g. ``trajectory: quintic.waypoints.1.position.2: Input should be a finite number (got nan)`` or
+``trajectory: quintic: waypoints.2.t: times must be strictly increasing (got 5.0 after 5.0)``.
+"""
+
+from __future__ import annotations
+
+import math
+from abc import ABC, abstractmethod
+from bisect import bisect_right
+from collections.abc import Sequence
+from dataclasses import dataclass
+
+import numpy as np
+from numpy.typing import ArrayLike
+
+from cdpr.mechanics.rotation import Array, matrix_to_quat, matrix_to_rotvec, rpy_to_matrix, skew
+
+__all__ = [
+    "QuinticWaypoints",
+    "SCurve",
+    "Setpoint",
+    "Trajectory",
+]
+
+
+def _readonly(a: Array) -> Array:
+    a.flags.writeable = False
+    return a
+
+
+@dataclass(frozen=True, eq=False)
+class Setpoint:
+    """The desired state at one instant. Arrays are read-only (a setpoint may be shared between calls)."""
+
+    position: Array  # (3,) world, centre of mass
+    rotation: Array  # (3, 3) platform → world
+    twist: Array  # (6,) [v; ω] world frame
+    accel: Array  # (6,) [a; α] world frame
+
+    @property
+    def quaternion(self) -> Array:
+        """The rotation as a unit quaternion [qx, qy, qz, qw] (qw ≥ 0)."""
+        return matrix_to_quat(self.rotation)
+
+
+def _hold(position: Array, rotation: Array) -> Setpoint:
+    """A resting setpoint: the pose with zero twist and acceleration."""
+    return Setpoint(
+        _readonly(np.array(position, dtype=float)),
+        _readonly(np.array(rotation, dtype=float)),
+        _readonly(np.zeros(6)),
+        _readonly(np.zeros(6)),
+    )
+
+
+class Trajectory(ABC):
+    """A desired-pose source: ``sample(t)`` for any finite t, holding the end poses outside the motion."""
+
+    duration: float  # time of the last waypoint (absolute, s)
+
+    @abstractmethod
+    def sample(self, t: float) -> Setpoint:
+        """The setpoint at time ``t`` (s)."""
+
+    @abstractmethod
+    def waypoints(self) -> list[tuple[float, Array]]:
+        """(time, position) of each waypoint, in time order, for drawing and checks."""
+
+
+def _as_points(values: ArrayLike, n: int | None, name: str) -> Array:
+    """``values`` as an (n, 3) finite float array, or ValueError naming ``name``."""
+    try:
+        a = np.array(values, dtype=float)
+    except (TypeError, ValueError):
+        raise ValueError(f"{name} must be a list of [x, y, z] triples of numbers") from None
+    if a.ndim != 2 or a.shape[1] != 3:
+        raise ValueError(f"{name} must be a list of [x, y, z] triples (got shape {a.shape})")
+    if n is not None and a.shape[0] != n:
+        raise ValueError(f"{name} must have one entry per waypoint ({n}), got {a.shape[0]}")
+    if not np.all(np.isfinite(a)):
+        raise ValueError(f"{name} must be finite")
+    return a
+
+
+def _as_vec3(values: ArrayLike, name: str) -> Array:
+    try:
+        a = np.array(values, dtype=float)
+    except (TypeError, ValueError):
+        raise ValueError(f"{name} must be 3 numbers") from None
+    if a.shape != (3,):
+        raise ValueError(f"{name} must be 3 numbers (got shape {a.shape})")
+    if not np.all(np.isfinite(a)):
+        raise ValueError(f"{name} must be finite (got {a.tolist()})")
+    return a
+
+
+class QuinticWaypoints(Trajectory):
+    """Rest-to-rest quintic segments through waypoints (zero velocity and acceleration at each).
+
+    ``times`` (s, strictly increasing, at least 2), ``positions`` (n × 3, world, centre of mass) and
+    optionally ``rpys`` (n × 3, radians; identity orientation if omitted). See the module docstring for
+    the formulas.
+    """
+
+    def __init__(
+        self,
+        times: Sequence[float],
+        positions: Sequence[Sequence[float]],
+        rpys: Sequence[Sequence[float]] | None = None,
+    ) -> None:
+        try:
+            t = np.array(times, dtype=float)
+        except (TypeError, ValueError):
+            raise ValueError("times must be a list of numbers") from None
+        if t.ndim != 1:
+            raise ValueError(f"times must be a flat list of numbers (got shape {t.shape})")
+        if t.size < 2:
+            raise ValueError(f"a trajectory needs at least 2 waypoints (got {t.size})")
+        if not np.all(np.isfinite(t)):
+            raise ValueError("times must be finite")
+        bad = np.flatnonzero(np.diff(t) <= 0.0)
+        if bad.size:
+            i = int(bad[0]) + 1
+            raise ValueError(f"times must be strictly increasing (times[{i}] = {t[i]} after {t[i - 1]})")
+        n = t.size
+        x = _as_points(positions, n, "positions")
+        R = np.repeat(np.eye(3)[None], n, axis=0) if rpys is None else _rotations(_as_points(rpys, n, "rpys"))
+
+        self.duration = float(t[-1])
+        self._times: list[float] = t.tolist()
+        self._points = x
+        self._x0 = x[:-1].copy()
+        self._dx = np.diff(x, axis=0)
+        self._inv_h = 1.0 / np.diff(t)
+        # Orientation per segment: R(s) = R_a + sin(sθ)·R_a K + (1 − cos(sθ))·R_a K², K = [r/θ]× (Rodrigues).
+        m = n - 1
+        self._R0 = R[:-1].copy()
+        self._RK = np.zeros((m, 3, 3))
+        self._RK2 = np.zeros((m, 3, 3))
+        self._theta = np.zeros(m)
+        self._axis_world = np.zeros((m, 3))  # R_a r: ω = (R_a r) ṡ
+        for i in range(m):
+            r = matrix_to_rotvec(R[i].T @ R[i + 1])
+            theta = float(np.linalg.norm(r))
+            self._axis_world[i] = R[i] @ r
+            if theta > 0.0:
+                K = skew(r / theta)
+                self._theta[i] = theta
+                self._RK[i] = R[i] @ K
+                self._RK2[i] = R[i] @ K @ K
+        self._first = _hold(x[0], R[0])
+        self._last = _hold(x[-1], R[-1])
+
+    @property
+    def times(self) -> list[float]:
+        """Waypoint times (s)."""
+        return list(self._times)
+
+    def waypoints(self) -> list[tuple[float, Array]]:
+        return [(t, p.copy()) for t, p in zip(self._times, self._points, strict=True)]
+
+    def sample(self, t: float) -> Setpoint:
+        t = float(t)
+        if not math.isfinite(t):
+            raise ValueError(f"sample time must be finite (got {t})")
+        if t <= self._times[0]:
+            return self._first
+        if t >= self.duration:
+            return self._last
+        i = bisect_right(self._times, t) - 1
+        inv_h = float(self._inv_h[i])
+        tau = (t - self._times[i]) * inv_h
+        u = 1.0 - tau
+        s = tau * tau * tau * (10.0 - 15.0 * tau + 6.0 * tau * tau)
+        ds = 30.0 * tau * tau * u * u * inv_h
+        dds = 60.0 * tau * u * (1.0 - 2.0 * tau) * inv_h * inv_h
+
+        dx = self._dx[i]
+        position = self._x0[i] + s * dx
+        a = s * self._theta[i]
+        rotation = self._R0[i] + math.sin(a) * self._RK[i] + (1.0 - math.cos(a)) * self._RK2[i]
+        twist = np.empty(6)
+        twist[:3] = ds * dx
+        twist[3:] = ds * self._axis_world[i]
+        accel = np.empty(6)
+        accel[:3] = dds * dx
+        accel[3:] = dds * self._axis_world[i]
+        return Setpoint(_readonly(position), _readonly(rotation), _readonly(twist), _readonly(accel))
+
+
+def _rotations(rpys: Array) -> Array:
+    return np.array([rpy_to_matrix(*rpy) for rpy in rpys])
+
+
+class SCurve(Trajectory):
+    """Pick-and-place: lift vertically from ``start``, travel to above ``goal``, lower onto ``goal``.
+
+    Parameters (SI, radians):
+
+    * ``start``, ``goal``: (3,) centre-of-mass positions to pick from and place at.
+    * ``lift_height``: travel height relative to the start, z = start_z + lift_height (≥ 0). Give either
+      it or the keyword ``pass_height``, not both (pass ``None`` for the one not used).
+    * ``pass_height``: absolute travel height z, or a pair (z above start, z above goal): the travel
+      phase then climbs or descends in a straight line between the two. Each must be ≥ the z of its end
+      point, so the lift goes up and the lowering goes down.
+    * ``t_lift``, ``t_travel``, ``t_lower``: phase durations (s, > 0); the motion starts at ``t_start``.
+    * ``start_rpy``, ``goal_rpy``: orientations (default zero, and ``goal_rpy`` defaults to
+      ``start_rpy``); the rotation happens during travel only, lift and lowering keep the orientation.
+
+    Each phase is a rest-to-rest quintic (zero velocity and acceleration at the phase ends; the corners
+    are not blended), i.e. a :class:`QuinticWaypoints` through the four corner points.
+    """
+
+    def __init__(
+        self,
+        start: ArrayLike,
+        goal: ArrayLike,
+        lift_height: float | None,
+        t_lift: float,
+        t_travel: float,
+        t_lower: float,
+        start_rpy: ArrayLike | None = None,
+        goal_rpy: ArrayLike | None = None,
+        t_start: float = 0.0,
+        *,
+        pass_height: float | Sequence[float] | None = None,
+    ) -> None:
+        a = _as_vec3(start, "start")
+        b = _as_vec3(goal, "goal")
+        if (lift_height is None) == (pass_height is None):
+            raise ValueError(
+                "give exactly one of lift_height (relative to start) and pass_height (absolute z)"
+            )
+        if lift_height is not None:
+            lift = float(lift_height)
+            if not (math.isfinite(lift) and lift >= 0.0):
+                raise ValueError(f"lift_height must be finite and >= 0 (got {lift_height})")
+            z_up = z_down = a[2] + lift
+        else:
+            try:
+                heights = np.atleast_1d(np.asarray(pass_height, dtype=float))
+            except (TypeError, ValueError):
+                raise ValueError(
+                    f"pass_height must be a number or a pair of numbers (got {pass_height!r})"
+                ) from None
+            if heights.shape not in ((1,), (2,)) or not np.all(np.isfinite(heights)):
+                raise ValueError(
+                    f"pass_height must be one finite height or a pair of them (got {pass_height})"
+                )
+            z_up, z_down = float(heights[0]), float(heights[-1])
+        if z_up < a[2]:
+            raise ValueError(f"pass_height {z_up} is below the start height {a[2]}: the lift must go up")
+        if z_down < b[2]:
+            raise ValueError(
+                f"pass_height {z_down} is below the goal height {b[2]}: the lowering must go down"
+            )
+        durations = {"t_lift": t_lift, "t_travel": t_travel, "t_lower": t_lower}
+        for name, value in durations.items():
+            if not (math.isfinite(float(value)) and float(value) > 0.0):
+                raise ValueError(f"{name} must be a finite duration > 0 (got {value})")
+        t0 = float(t_start)
+        if not math.isfinite(t0):
+            raise ValueError(f"t_start must be finite (got {t_start})")
+
+        rpy_a = np.zeros(3) if start_rpy is None else _as_vec3(start_rpy, "start_rpy")
+        rpy_b = rpy_a if goal_rpy is None else _as_vec3(goal_rpy, "goal_rpy")
+        t1 = t0 + float(t_lift)
+        t2 = t1 + float(t_travel)
+        t3 = t2 + float(t_lower)
+        self._path = QuinticWaypoints(
+            [t0, t1, t2, t3],
+            np.array([a, [a[0], a[1], z_up], [b[0], b[1], z_down], b]).tolist(),
+            np.array([rpy_a, rpy_a, rpy_b, rpy_b]).tolist(),
+        )
+        self.duration = t3
+        self.phase_times: tuple[float, float, float, float] = (t0, t1, t2, t3)
+        """Start of the lift, end of the lift, end of the travel, end of the lowering (s)."""
+
+    def sample(self, t: float) -> Setpoint:
+        return self._path.sample(t)
+
+    def waypoints(self) -> list[tuple[float, Array]]:
+        return self._path.waypoints()

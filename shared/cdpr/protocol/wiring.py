@@ -1,0 +1,77 @@
+"""The wiring table: which node publishes and which subscribes to each topic, in one place.
+
+Like a dora-rs dataflow or a Drake diagram, each node lists its inputs (``subscribes``) and outputs
+(``publishes``) by topic name; :func:`cdpr.runtime.service.serve` declares exactly these on Zenoh for
+the node (a node cannot publish a topic it did not list), the in-process composition wires the same
+names, and tests check that docs/protocol.md and docker/compose.yaml say the same. Every node also
+subscribes to ``status`` and publishes ``stats`` and a liveliness token ``alive/{node}``: the serve loop
+does that for all of them, so they are listed here once (:data:`EVERY_NODE`) rather than per node.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+
+@dataclass(frozen=True)
+class Topic:
+    """One topic: its key below ``cdpr/{session}/``, its message, and how it is served."""
+
+    key: str
+    message: str  # the class in cdpr.protocol that encodes and decodes it
+    kind: str = "pubsub"  # "pubsub", "queryable" (answered to a `get`) or "liveliness" (a token)
+
+
+TOPICS: dict[str, Topic] = {
+    "tick": Topic("clock/tick", "Tick"),
+    "status": Topic("clock/status", "Status"),
+    "state": Topic("sim/state", "State"),
+    "setpoint": Topic("trajectory/setpoint", "Setpoint"),
+    "command": Topic("controller/command", "Command"),
+    "sensors": Topic("sim/sensors", "Sensors"),
+    "info": Topic("session/info", "SessionInfo", kind="queryable"),
+    "stats": Topic("stats/{node}", "ServiceStats"),
+    "alive": Topic("alive/{node}", "", kind="liveliness"),
+}
+
+
+@dataclass(frozen=True)
+class NodeWiring:
+    subscribes: tuple[str, ...]
+    publishes: tuple[str, ...]
+
+
+# What the serve loop wires for every node, whatever the table says below.
+EVERY_NODE = NodeWiring(subscribes=("status",), publishes=("stats", "alive"))
+
+WIRING: dict[str, NodeWiring] = {
+    "clock": NodeWiring(subscribes=("state", "stats"), publishes=("tick", "status", "info")),
+    "sim": NodeWiring(subscribes=("tick", "command"), publishes=("state", "sensors")),
+    "trajectory": NodeWiring(subscribes=("tick",), publishes=("setpoint",)),
+    "controller": NodeWiring(subscribes=("state", "setpoint"), publishes=("command",)),
+    "recorder": NodeWiring(subscribes=("tick", "state", "setpoint", "command"), publishes=()),
+}
+
+
+def wiring_of(node: str) -> NodeWiring:
+    """The table's row for ``node``, the wiring every node has added."""
+    row = WIRING.get(node, NodeWiring((), ()))
+    return NodeWiring(row.subscribes + EVERY_NODE.subscribes, row.publishes + EVERY_NODE.publishes)
+
+
+def publishers(topic: str) -> tuple[str, ...]:
+    return tuple(n for n in WIRING if topic in wiring_of(n).publishes)
+
+
+def subscribers(topic: str) -> tuple[str, ...]:
+    return tuple(n for n in WIRING if topic in wiring_of(n).subscribes)
+
+
+def check_node(node: str, subscribes: tuple[str, ...], publishes: tuple[str, ...]) -> None:
+    """Raise ValueError if a node declares a topic its row of :data:`WIRING` does not list (or misses one)."""
+    if node not in WIRING:
+        raise ValueError(f"node {node!r} is not in the wiring table (cdpr.protocol.wiring.WIRING)")
+    row = WIRING[node]
+    for what, declared, listed in (("subscribes", subscribes, row.subscribes), ("publishes", publishes, row.publishes)):
+        if set(declared) != set(listed):
+            raise ValueError(f"node {node!r} {what} {sorted(declared)}, the wiring table lists {sorted(listed)}")

@@ -1,0 +1,82 @@
+"""``python -m cdpr_<name>``: one node as its own process, without the ``cdpr`` command-line tool.
+
+The options every node shares (scenario, session, Zenoh endpoints, realtime priority) are defined here
+once; a node adds its own in :meth:`~cdpr.runtime.service.Node.add_arguments` and builds itself from
+the parsed arguments in :meth:`~cdpr.runtime.service.Node.from_args`. ``cdpr <name> …`` hands its
+arguments to the same function, so both spell every option the same way.
+
+An invalid scenario or option prints one line ``cdpr: error: …`` on stderr and exits with code 2.
+"""
+
+from __future__ import annotations
+
+import argparse
+import math
+import sys
+from collections.abc import Sequence
+from typing import NoReturn
+
+from cdpr.errors import InputError
+
+
+def add_zenoh_arguments(parser: argparse.ArgumentParser) -> None:
+    """The Zenoh options of every node, the launcher and the remote-controller SDK."""
+    z = parser.add_argument_group("Zenoh")
+    z.add_argument("--zenoh-mode", choices=("peer", "client"), default="peer", help="(default: %(default)s)")
+    z.add_argument("--connect", action="append", default=[], metavar="ENDPOINT",
+                   help="Zenoh endpoint to connect to, e.g. tcp/192.168.1.10:7447 (repeatable)")
+    z.add_argument("--listen", action="append", default=[], metavar="ENDPOINT",
+                   help="Zenoh endpoint to listen on, e.g. tcp/0.0.0.0:7447 (repeatable)")
+    z.add_argument("--zenoh-config", default=None, metavar="FILE", help="Zenoh JSON5 config file (or $ZENOH_CONFIG)")
+    z.add_argument("--connect-timeout", type=float, default=30.0, metavar="S",
+                   help="seconds a client keeps trying to reach --connect endpoints (default: %(default)s)")
+
+
+def parser_for(name: str) -> argparse.ArgumentParser:
+    from cdpr.runtime.registry import node_class
+
+    cls = node_class(name)
+    doc = (cls.__doc__ or "").strip().splitlines()
+    parser = argparse.ArgumentParser(prog=f"cdpr {name}", description=doc[0] if doc else None)
+    parser.add_argument("scenario", help="a shipped scenario name (caroca_15kg) or a scenario YAML file")
+    parser.add_argument("--session", dest="session_id", default="default", help="session id (default: %(default)s)")
+    parser.add_argument("--duration", type=float, default=None, help="override the scenario's duration (s)")
+    parser.add_argument("--rt-priority", type=int, default=None, metavar="1-99",
+                        help="run under SCHED_FIFO at this priority (realtime mode on a busy machine; "
+                             "needs CAP_SYS_NICE)")
+    add_zenoh_arguments(parser)
+    cls.add_arguments(parser)
+    return parser
+
+
+def _fail(message: str) -> NoReturn:
+    print(f"cdpr: error: {message}", file=sys.stderr)
+    sys.exit(2)
+
+
+def node_main(name: str, argv: Sequence[str] | None = None) -> NoReturn:
+    """Parse ``argv`` (default ``sys.argv[1:]``), build node ``name`` and serve it until the session ends."""
+    from cdpr.protocol import Keys
+    from cdpr.runtime.registry import node_class
+    from cdpr.runtime.service import serve, set_realtime_priority
+    from cdpr.runtime.transport import zenoh_config
+
+    try:
+        parser = parser_for(name)
+        args = parser.parse_args(list(sys.argv[1:] if argv is None else argv))
+        from cdpr.config.scenario import load_scenario  # after --help: the scenario loader is heavier
+
+        if args.duration is not None and not (math.isfinite(args.duration) and args.duration > 0):
+            raise InputError(f"--duration: must be a positive number of seconds, got {args.duration}")
+        scenario = load_scenario(args.scenario, {"duration": args.duration})
+        try:
+            keys = Keys(args.session_id)
+        except ValueError as exc:
+            raise InputError(f"--session: {exc}") from None
+        conf = zenoh_config(args.zenoh_mode, args.connect, args.listen, args.zenoh_config, args.connect_timeout)
+        node = node_class(name).from_args(scenario, keys, args)
+        if args.rt_priority is not None:
+            set_realtime_priority(args.rt_priority)  # before Zenoh's threads exist: they inherit it
+    except InputError as exc:
+        _fail(str(exc))
+    sys.exit(serve(node, conf))

@@ -1,0 +1,354 @@
+"""The shell every service shares: open Zenoh, declare, hold a liveliness token, run one event loop.
+
+A service is a :class:`Node`: it declares what it reads and writes in :meth:`Node.declare`, handles one
+:class:`~cdpr.runtime.transport.Event` at a time in :meth:`Node.handle`, and says when it is done. :func:`serve`
+does the rest, the same way for every service: subscribers are declared before the liveliness token
+(so whoever sees the token can already reach the service), the session ends on ``clock/status``
+finished/aborted, on SIGINT/SIGTERM, or when the parent process that launched it is gone.
+
+Two ways to run a node, one event at a time either way:
+
+* queued (the default): Zenoh's receive thread puts events on a queue, the service's main thread takes
+  them out, handles them and calls :meth:`Node.idle`;
+* direct (``Node.direct = True``, the lock-step services): the receive thread handles each event itself,
+  under the node's lock, then calls :meth:`Node.idle` — no thread hand-off between a message and its
+  answer. The main thread only wakes for the node's deadlines (:meth:`Node.timeout`), the once-a-second
+  chores, a signal and the end. A deadline is met by sleeping until shortly before it, then polling
+  the clock until it has passed (:data:`SPIN`), instead of trusting the OS timer's slack — unless the
+  process runs under SCHED_FIFO (``--rt-priority``), whose timers have no slack and wake it at once.
+"""
+
+from __future__ import annotations
+
+import argparse
+import faulthandler
+import gc
+import os
+import signal
+import threading
+import time
+from collections import deque
+from collections.abc import Callable
+from typing import TYPE_CHECKING, Any
+
+import zenoh
+
+from cdpr.errors import InputError
+from cdpr.protocol import Keys, ProtocolError, ServiceStats, Status
+from cdpr.protocol.wiring import TOPICS, check_node
+from cdpr.runtime.transport import PUBLISH_OPTS, Event, Inbox, StopFlag, log, open_session
+
+if TYPE_CHECKING:
+    from cdpr.config.scenario import Scenario
+
+PARENT_ENV = "CDPR_PARENT_PID"
+
+
+class Node:
+    """Base class of a service's node. Subclasses set ``name`` and override the hooks."""
+
+    name = "node"
+    direct = False  # handle events on Zenoh's receive thread (see the module docstring)
+    # The topics this node reads and writes (names of cdpr.protocol.wiring.TOPICS): serve() declares
+    # them, after checking them against the node's row of the wiring table. Events arrive with the topic
+    # name as their kind; publishers wait in ``self.publishers[topic]``.
+    subscribes: tuple[str, ...] = ()
+    publishes: tuple[str, ...] = ()
+
+    def __init__(self, keys: Keys) -> None:
+        self.keys = keys
+        self.done = False
+        self.exit_code = 0
+        self.final_status: Status | None = None
+        self.counters: dict[str, int] = {}  # fault counters, published on stats/{name}
+        self.publishers: dict[str, zenoh.Publisher] = {}
+
+    @classmethod
+    def add_arguments(cls, parser: argparse.ArgumentParser) -> None:
+        """Add this node's own command-line options (``python -m cdpr_<name>``, ``cdpr <name>``)."""
+
+    @classmethod
+    def from_args(cls, scenario: Scenario, keys: Keys, args: argparse.Namespace) -> Node:
+        """The node for ``scenario`` from the parsed command line (see :mod:`cdpr.runtime.main`)."""
+        return cls(scenario, keys)  # type: ignore[call-arg]
+
+    @classmethod
+    def make_core(cls, scenario: Scenario) -> Any:
+        """The node's pure step object for ``scenario``, without Zenoh (the same math in one process:
+        ``cdpr bench``'s monolithic loop). Nodes whose work is only messaging have none."""
+        raise NotImplementedError(f"the {cls.name} node has no pure core")
+
+    def count(self, what: str) -> None:
+        self.counters[what] = self.counters.get(what, 0) + 1
+
+    def declare(self, session: zenoh.Session, inbox: Inbox) -> list[Any]:
+        """Called once the listed topics are declared (``self.publishers`` is filled): declare anything
+        else (a liveliness watch) and return it, to be kept alive and undeclared at the end."""
+        return []
+
+    def reply(self, topic: str) -> bytes:
+        """The answer to a ``get`` on a queryable topic this node publishes (``session/info``)."""
+        raise NotImplementedError(topic)
+
+    def handle(self, event: Event) -> None:
+        """One event from the inbox (never a ``status`` event: :func:`serve` handles those)."""
+
+    def idle(self, now: float) -> None:
+        """Called after each event (direct nodes; on whichever thread handled it) or batch of events
+        (queued nodes), and at least every ``Node.idle_period`` seconds."""
+
+    def timeout(self, now: float) -> float:
+        """How long the loop may wait for the next event before calling :meth:`idle`."""
+        return self.idle_period
+
+    def on_status(self, status: Status) -> None:
+        if status.state in ("finished", "aborted"):
+            self.final_status = status
+            self.done = True
+            if status.state == "aborted":
+                log(self.name, f"session aborted by the clock: {status.reason}")
+
+    def close(self) -> None:
+        """Last words before the session closes (flush files, print statistics)."""
+
+    idle_period = 0.1
+
+
+def set_realtime_priority(priority: int, inherited: bool = True) -> None:
+    """Run this process under SCHED_FIFO at ``priority`` (1–99), like a ROS 2 realtime executor.
+
+    Call it before opening the Zenoh session: the threads made afterwards (Zenoh's) inherit it;
+    processes started afterwards too, unless ``inherited`` is False (SCHED_RESET_ON_FORK). A
+    SCHED_FIFO thread runs before every normal one on its CPU, so the loop's steps are no longer
+    delayed by other programs; Linux still keeps 5 % of each second for normal threads
+    (``kernel.sched_rt_runtime_us``). Needs CAP_SYS_NICE or an rtprio resource limit; otherwise
+    an InputError saying so.
+    """
+    if not 1 <= priority <= 99:
+        raise InputError(f"--rt-priority: must be between 1 and 99, got {priority}")
+    if not hasattr(os, "sched_setscheduler"):
+        raise InputError("--rt-priority: this system has no SCHED_FIFO scheduling (Linux only)")
+    try:
+        policy = os.SCHED_FIFO if inherited else os.SCHED_FIFO | os.SCHED_RESET_ON_FORK
+        os.sched_setscheduler(0, policy, os.sched_param(priority))
+    except OSError as exc:
+        raise InputError(
+            f"--rt-priority: SCHED_FIFO priority {priority} not permitted ({exc.strerror}); it needs "
+            "CAP_SYS_NICE or an rtprio limit (ulimit -r, or docker's --cap-add SYS_NICE --ulimit rtprio=99)"
+        ) from None
+
+
+def _realtime_scheduled() -> bool:
+    """Whether the calling thread runs under SCHED_FIFO (see :func:`set_realtime_priority`)."""
+    if not hasattr(os, "sched_getscheduler"):
+        return False
+    return os.sched_getscheduler(0) & ~getattr(os, "SCHED_RESET_ON_FORK", 0) == os.SCHED_FIFO
+
+
+def _parent_alive(pid: int | None) -> bool:
+    if pid is None:
+        return True
+    return os.getppid() == pid
+
+
+SPIN = 2e-4  # seconds before a deadline at which the main thread stops sleeping and starts polling
+
+
+class _Dispatcher:
+    """Runs a node's handlers one at a time, on whichever thread calls it (Zenoh's or the main one).
+
+    A lock serialises the threads. A call made while the same thread is already inside a handler (a
+    publication delivered synchronously to a subscriber of the same process) is queued and run right
+    after the current handler, never nested. The first exception stops the dispatcher and is kept
+    for the main thread to raise.
+    """
+
+    def __init__(self, node: Node, on_event: Callable[[Event], None], wake: threading.Event,
+                 stop: StopFlag) -> None:
+        self._node = node
+        self._on_event = on_event
+        self._wake = wake
+        self._stop = stop
+        self._lock = threading.RLock()
+        self._busy = False
+        self._backlog: deque[Event] = deque()
+        self.error: BaseException | None = None
+        self.closed = False
+
+    def __call__(self, event: Event) -> None:
+        """Handle one event, then let the node act on it (:meth:`Node.idle`)."""
+        with self._lock:
+            if self._busy:
+                self._backlog.append(event)
+                return
+            if self.closed or self._stop:  # after a signal, nothing more is handled
+                return
+            self._busy = True
+            try:
+                node = self._node
+                self._on_event(event)
+                while True:
+                    self._drain()
+                    now = time.monotonic()
+                    node.idle(now)  # which may publish to this very process: drained in the next turn
+                    if not self._backlog or node.done:
+                        break
+                if node.done or node.timeout(now) < node.idle_period:
+                    self._wake.set()  # the main thread has a deadline to meet, or the end to handle
+            except BaseException as exc:
+                self.error, self.closed = exc, True
+                self._wake.set()
+            finally:
+                self._busy = False
+
+    def _drain(self) -> None:
+        """Handle the events queued while a handler ran (not after the end or a signal)."""
+        while self._backlog and not self._node.done and not self._stop:
+            self._on_event(self._backlog.popleft())
+
+    def run(self, fn: Callable[[], None]) -> float:
+        """Run ``fn`` (the main thread's chores) under the lock; the node's timeout afterwards."""
+        with self._lock:
+            if self.closed:
+                return 0.0
+            self._busy = True
+            try:
+                fn()
+                self._drain()
+                return self._node.timeout(time.monotonic())
+            except BaseException as exc:
+                self.error, self.closed = exc, True
+                return 0.0
+            finally:
+                self._busy = False
+
+    def close(self) -> None:
+        with self._lock:
+            self.closed = True
+
+
+def _sleep_until(wake: threading.Event, deadline: float, precise: bool) -> None:
+    """Sleep until ``deadline`` (time.monotonic) or until ``wake`` is set, whichever comes first.
+
+    ``precise``: sleep only until :data:`SPIN` before the deadline, then poll the clock (releasing
+    the GIL at every turn, the CPU kept) until it has passed — the OS timer alone may wake a thread
+    late by its slack and the scheduler's latency. Not under SCHED_FIFO: there the timer has no slack
+    and the woken thread runs at once, and polling would keep normal processes off that CPU.
+    """
+    rest = deadline - time.monotonic()
+    if not precise or _realtime_scheduled():
+        wake.wait(max(rest, 0.0))
+        return
+    if rest > SPIN and wake.wait(rest - SPIN):
+        return
+    while time.monotonic() < deadline and not wake.is_set():
+        time.sleep(0)
+
+
+def declare_topics(node: Node, session: zenoh.Session, inbox: Inbox) -> list[Any]:
+    """Declare what ``node`` lists (checked against the wiring table), then its own extras, then
+    ``status`` (every node's); return what must be kept alive."""
+    check_node(type(node).name, node.subscribes, node.publishes)  # the role (an instance may rename itself)
+    keys, keep = node.keys, []
+    for topic in node.publishes:
+        if TOPICS[topic].kind == "queryable":
+            def on_query(query: zenoh.Query, topic: str = topic) -> None:
+                query.reply(query.key_expr, node.reply(topic))
+
+            keep.append(session.declare_queryable(keys.topic(topic), on_query))
+        else:
+            node.publishers[topic] = session.declare_publisher(keys.topic(topic, node.name), **PUBLISH_OPTS)
+    keep.extend(node.publishers.values())
+    keep.extend(inbox.subscribe(session, keys.topic(topic), topic) for topic in node.subscribes)
+    keep.extend(node.declare(session, inbox))
+    keep.append(inbox.subscribe(session, keys.status, "status"))
+    return keep
+
+
+def serve(node: Node, conf: zenoh.Config, stop: StopFlag | None = None) -> int:
+    """Run ``node`` until it is done; return the process exit code (0 ok, 1 failure, 130/143 signal)."""
+    stop = stop or StopFlag().install()
+    faulthandler.register(signal.SIGUSR1, all_threads=True)  # SIGUSR1: every thread's stack on stderr
+    parent = int(os.environ[PARENT_ENV]) if os.environ.get(PARENT_ENV, "").isdigit() else None
+    try:
+        session = open_session(conf, node.name)
+    except InputError as exc:
+        log(node.name, str(exc))
+        return 2
+
+    def on_event(event: Event) -> None:
+        if event.kind == "status":
+            try:
+                node.on_status(Status.decode(event.payload))
+            except ProtocolError as exc:
+                node.count("bad_status")
+                log(node.name, f"dropped a bad clock/status message: {exc}")
+        else:
+            node.handle(event)
+
+    with session:
+        wake = threading.Event()
+        dispatcher = _Dispatcher(node, on_event, wake, stop) if node.direct else None
+        stop.on_set(wake.set)  # a signal wakes the main thread at once
+        inbox = Inbox(dispatcher)
+        keep = declare_topics(node, session, inbox)
+        # Everything made so far (modules, the node, its models) lives as long as the process: out of
+        # the garbage collector's sight, a full collection no longer scans ~70 000 objects (~30 ms,
+        # with the GIL held: a stalled step).
+        gc.collect()
+        gc.freeze()
+        stats_pub = session.declare_publisher(node.keys.stats(node.name))
+        token = session.liveliness().declare_token(node.keys.alive(node.name))
+        published: dict[str, int] = {}
+        last_stats = time.monotonic()
+
+        def publish_stats() -> None:
+            nonlocal published, last_stats
+            last_stats = time.monotonic()
+            if node.counters != published:
+                published = dict(node.counters)
+                stats_pub.put(ServiceStats(node.name, published).encode())
+
+        def chores() -> None:
+            """Once per turn of the main loop: the node's idle hook, the stats, the parent's check."""
+            now = time.monotonic()
+            node.idle(now)
+            if now - last_stats >= 1.0:
+                publish_stats()
+            if not _parent_alive(parent):
+                log(node.name, "the process that launched this service is gone; stopping")
+                node.done = True
+
+        try:
+            if dispatcher is not None:
+                while not node.done and not stop and dispatcher.error is None:
+                    wake.clear()  # before the chores: a wake-up from now on ends the sleep below
+                    timeout = dispatcher.run(chores)
+                    if node.done or stop or dispatcher.error is not None:
+                        break
+                    now = time.monotonic()
+                    _sleep_until(wake, now + min(timeout, node.idle_period), timeout < node.idle_period)
+                dispatcher.close()
+                if dispatcher.error is not None:
+                    raise dispatcher.error
+            else:
+                while not node.done and not stop:
+                    for event in inbox.drain(node.timeout(time.monotonic())):
+                        on_event(event)
+                        if node.done or stop:  # a signal must not wait for a backlog to drain
+                            break
+                    chores()
+        finally:
+            if dispatcher is not None:
+                dispatcher.close()
+            node.close()
+            publish_stats()
+            token.undeclare()
+            stats_pub.undeclare()
+            for entity in keep:
+                undeclare = getattr(entity, "undeclare", None)
+                if undeclare is not None:
+                    undeclare()
+    if stop.signal is not None:
+        return 128 + stop.signal
+    return node.exit_code

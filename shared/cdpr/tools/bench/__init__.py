@@ -1,0 +1,228 @@
+"""`cdpr bench`: where the lock-step loop's time goes, every figure measured side by side in one run.
+
+One invocation measures, one after the other on the same machine (so that their ratios hold even
+when the machine is shared and its absolute speed drifts):
+
+1. ``monolithic``: the services' per-step work in one process, without messaging — DART step
+   (:class:`cdpr_sim.core.PlatformSim`), controller core (feedback linearisation + tension
+   distribution), trajectory setpoint and the encoding/decoding of the four messages of a step: the
+   ceiling of the distributed loop;
+2. ``distributed``: ``cdpr run SCENARIO`` (fast mode) as a subprocess: steps/s, RTF, its ratio to (1),
+   and the CPU each process spends per step;
+3. ``zenoh_rtt``: a raw Zenoh round trip with the project's settings — two processes on loopback,
+   each answering in its :class:`cdpr.runtime.transport.Inbox` callback, ``PUBLISH_OPTS``; as clients of a
+   router (how remote participants talk) and as peers linked directly (how ``cdpr run``'s services
+   talk): the floor of one hop;
+4. ``realtime``: ``cdpr run SCENARIO --mode realtime --duration D``: the share of ticks issued within
+   1 ms of their deadline and the lateness percentiles;
+5. ``tda``: the tension distribution's solve time per method for 4, 8, 12 and 16 cables, along a
+   smooth path (as in the loop: warm), on random well-conditioned robots built here;
+6. ``scaling``: steps/s and CPU per step with 1, 2, 4, 8 concurrent sessions, and with 4 → 16 cables
+   (generated robot and scenario files in a temporary directory).
+
+Medians over repeats; ``--quick`` runs every part, shorter, in under two minutes. Results are printed
+as a table and written as JSON. The Linux ``/proc`` file system gives the per-process CPU figures
+(elsewhere they are left out).
+"""
+
+
+from __future__ import annotations
+
+import json
+import os
+import platform
+import time
+from collections.abc import Callable
+from dataclasses import asdict
+from pathlib import Path
+from typing import Any
+
+from cdpr.config.scenario import load_scenario
+from cdpr.tools.bench.loops import (
+    bench_cables,
+    bench_distributed,
+    bench_monolithic,
+    bench_realtime,
+    bench_sessions,
+    monolithic_steps,
+    rt_priority_allowed,
+)
+from cdpr.tools.bench.plan import BENCH_VERSION, FULL, QUICK, BenchPlan, _log
+from cdpr.tools.bench.robots import bench_tda, robot_spec, scenario_yaml, tda_path
+from cdpr.tools.bench.zenoh_rtt import bench_zenoh_rtt
+
+__all__ = ["BENCH_VERSION", "FULL", "QUICK", "BenchPlan", "monolithic_steps", "robot_spec", "rt_priority_allowed",
+           "run_bench", "scenario_yaml", "table", "tda_path"]
+
+# --------------------------------------------------------------------------------------------------
+# The whole run
+
+
+def machine() -> dict[str, Any]:
+    model = ""
+    try:
+        with open("/proc/cpuinfo") as f:
+            model = next((ln.split(":", 1)[1].strip() for ln in f if ln.startswith("model name")), "")
+    except OSError:
+        pass
+    import zenoh
+
+    return {
+        "nproc": os.cpu_count(),
+        "cpu_model": model or platform.processor(),
+        "loadavg": list(os.getloadavg()),
+        "python": platform.python_version(),
+        "zenoh": getattr(zenoh, "__version__", None) or _dist_version("eclipse-zenoh"),
+        "platform": platform.platform(),
+    }
+
+
+def _dist_version(name: str) -> str | None:
+    from importlib.metadata import PackageNotFoundError, version
+
+    try:
+        return version(name)
+    except PackageNotFoundError:
+        return None
+
+
+def targets(result: dict[str, Any]) -> dict[str, dict[str, Any]]:
+    """The project's performance targets, each with the measured figure and whether it is met."""
+    dist, rt = result["distributed"], result["realtime"]
+
+    def target(value: float, met: bool, **extra: Any) -> dict[str, Any]:
+        return {"value": value, "met": bool(met), **extra}
+
+    out = {
+        "distributed_steps_per_s>=2000": target(dist["steps_per_s"], dist["steps_per_s"] >= 2000),
+        "distributed/monolithic>=0.6": target(ratio := dist["ratio_to_monolithic"], ratio >= 0.6),
+        "realtime_on_time>=0.999": target(rt["on_time_fraction"], rt["on_time_fraction"] >= 0.999,
+                                          over_s=rt["duration_s"]),
+    }
+    if (fifo := rt.get("rt_priority")) is not None:
+        out["realtime_on_time_rt_priority>=0.999"] = target(
+            fifo["on_time_fraction"], fifo["on_time_fraction"] >= 0.999, over_s=fifo["duration_s"])
+    tda8 = next((s for s in result["tda"]["sizes"] if s["cables"] == 8), None)
+    if tda8 is not None:
+        qp, diff = tda8["methods"]["qp"]["median_us"], tda8["qp_max_difference_N"]
+        out["qp_8_cables_median_us<=50"] = target(qp, qp <= 50.0)
+        out["qp_same_optimum<=1e-6"] = target(diff, diff <= 1e-6)
+    return out
+
+
+def run_bench(plan: BenchPlan, scenario: str = "caroca_15kg", out: Path | None = Path("bench.json"),
+              log: Callable[[str], None] = _log) -> dict[str, Any]:
+    """Run every part of ``plan``; returns the results (and writes them to ``out`` as JSON)."""
+    started = time.monotonic()
+    sc = load_scenario(scenario)
+    result: dict[str, Any] = {
+        "version": BENCH_VERSION,
+        "quick": plan == QUICK,
+        "scenario": sc.name,
+        "plan": asdict(plan),
+        "machine": machine(),
+        "started": time.strftime("%Y-%m-%dT%H:%M:%S%z"),
+    }
+    load: dict[str, float] = {}  # the 1-minute load average as each part starts: the machine may be shared
+    result["machine"]["loadavg_by_part"] = load
+
+    def part(name: str, message: str) -> None:
+        load[name] = os.getloadavg()[0]
+        log(f"{len(load)}/6 {message}")
+
+    part("monolithic", f"monolithic loop ({plan.mono_steps} steps x {plan.mono_repeats})")
+    result["monolithic"] = bench_monolithic(sc, plan.mono_steps, plan.mono_repeats)
+    part("distributed", f"distributed loop (cdpr run {scenario} x {plan.loop_repeats})")
+    result["distributed"] = bench_distributed(scenario, plan.loop_duration, plan.loop_repeats,
+                                              result["monolithic"]["steps_per_s"])
+    part("zenoh_rtt", f"Zenoh round trip ({plan.rtt_count})")
+    result["zenoh_rtt"] = bench_zenoh_rtt(plan.rtt_count)
+    part("realtime", f"realtime mode ({plan.realtime_duration:g} s)")
+    result["realtime"] = bench_realtime(scenario, plan.realtime_duration)
+    part("tda", f"tension distribution ({', '.join(map(str, plan.tda_sizes))} cables)")
+    result["tda"] = bench_tda(plan.tda_sizes, plan.tda_calls)
+    part("scaling", f"scaling ({', '.join(map(str, plan.session_counts))} sessions; "
+                    f"{', '.join(map(str, plan.cable_counts))} cables)")
+    result["scaling"] = {
+        "sessions": bench_sessions(scenario, plan.session_counts, plan.session_duration),
+        "cables": bench_cables(plan.cable_counts, plan.cable_duration),
+    }
+    result["machine"]["loadavg_end"] = list(os.getloadavg())
+    result["elapsed_s"] = time.monotonic() - started
+    result["targets"] = targets(result)
+    if out is not None:
+        out.parent.mkdir(parents=True, exist_ok=True)
+        out.write_text(json.dumps(result, indent=2) + "\n", encoding="utf-8")
+    return result
+
+
+def _fmt(x: Any, digits: int = 0) -> str:
+    if x is None:
+        return "-"
+    if isinstance(x, float):
+        return f"{x:,.{digits}f}"
+    return str(x)
+
+
+def table(r: dict[str, Any]) -> str:
+    """The results as a plain-text table (what `cdpr bench` prints)."""
+    mono, dist, rtt, rt, mach = r["monolithic"], r["distributed"], r["zenoh_rtt"], r["realtime"], r["machine"]
+    rows: list[tuple[str, str]] = [
+        ("1 monolithic loop, steps/s", _fmt(mono["steps_per_s"])),
+        *((f"    {k}, us/step", _fmt(v, 1)) for k, v in mono["us_per_step"].items()),
+        ("2 distributed loop (fast), steps/s", _fmt(dist["steps_per_s"])),
+        ("    RTF", _fmt(dist["rtf"], 2)),
+        ("    ratio to the monolithic loop", _fmt(dist["ratio_to_monolithic"], 2)),
+        ("    CPU of all processes, us/step", _fmt(dist["cpu_us_per_step"])),
+        *((f"      {k}", _fmt(v)) for k, v in dist["cpu_us_per_step_by_process"].items()),
+        ("3 Zenoh round trip, clients through the router, median us", _fmt(rtt["median_us"], 1)),
+        ("    p99 us", _fmt(rtt["p99_us"], 1)),
+        ("    one message (half), us", _fmt(rtt["one_way_us"], 1)),
+        ("  peers linked directly (as in cdpr run), median us", _fmt(rtt["peers"]["median_us"], 1)),
+        ("    p99 us", _fmt(rtt["peers"]["p99_us"], 1)),
+        ("    one message (half), us", _fmt(rtt["peers"]["one_way_us"], 1)),
+        (f"4 realtime 1 kHz, {rt['duration_s']:g} s: ticks within 1 ms",
+         f"{100 * rt['on_time_fraction']:.3f} %"),
+        ("    lateness p50 / p99 / p99.9 / max, ms",
+         " / ".join(f"{rt[f'lateness_{p}_ms']:.3f}" for p in ("p50", "p99", "p999", "max"))),
+    ]
+    if (fifo := rt.get("rt_priority")) is not None:
+        rows += [
+            (f"  with --rt-priority {fifo['priority']} (SCHED_FIFO): ticks within 1 ms",
+             f"{100 * fifo['on_time_fraction']:.3f} %"),
+            ("    lateness p50 / p99 / p99.9 / max, ms",
+             " / ".join(f"{fifo[f'lateness_{p}_ms']:.3f}" for p in ("p50", "p99", "p999", "max"))),
+        ]
+    else:
+        rows.append(("  with --rt-priority", "not permitted here"))
+    lines = [
+        f"cdpr bench{' --quick' if r['quick'] else ''}: {r['scenario']}, "
+        f"{mach['nproc']} x {mach['cpu_model']}, "
+        f"load {mach['loadavg'][0]:.2f} -> {mach['loadavg_end'][0]:.2f}, {r['elapsed_s']:.0f} s",
+        "load as each part started: " + ", ".join(f"{k} {v:.1f}" for k, v in mach["loadavg_by_part"].items()),
+        "",
+        *(f"{name:52s} {value:>22s}" for name, value in rows),
+        "",
+        "5 tension distribution, median us per solve (p90)",
+    ]
+    sizes = r["tda"]["sizes"]
+    lines.append(f"    {'method':24s}" + "".join(f"{str(s['cables']) + ' cables':>16s}" for s in sizes))
+    for name in sizes[0]["methods"] if sizes else ():
+        stats = [s["methods"][name] for s in sizes]
+        cells = (f"{_fmt(t['median_us'], 1)} ({_fmt(t['p90_us'])})" for t in stats)
+        lines.append(f"    {name:24s}" + "".join(f"{c:>16s}" for c in cells))
+    lines.append(f"    {'qp vs qp_solver, max |df|':24s}"
+                 + "".join(f"{s['qp_max_difference_N']:>14.1e} N" for s in sizes))
+    lines += ["", "6 scaling",
+              f"    {'sessions':10s}{'steps/s each':>16s}{'aggregate':>12s}{'CPU us/step':>14s}"]
+    for s in r["scaling"]["sessions"]:
+        lines.append(f"    {s['sessions']:<10d}{_fmt(s['median_steps_per_s']):>16s}"
+                     f"{_fmt(s['aggregate_steps_per_s']):>12s}{_fmt(s['cpu_us_per_step']):>14s}")
+    lines.append(f"    {'cables':10s}{'steps/s':>16s}{'':>12s}{'CPU us/step':>14s}")
+    for c in r["scaling"]["cables"]:
+        lines.append(f"    {c['cables']:<10d}{_fmt(c['steps_per_s']):>16s}{'':>12s}"
+                     f"{_fmt(c['cpu_us_per_step']):>14s}")
+    lines += ["", "targets"]
+    for name, t in r["targets"].items():
+        lines.append(f"    {name:36s} {_fmt(t['value'], 4):>14s}  {'met' if t['met'] else 'MISSED'}")
+    return "\n".join(lines)

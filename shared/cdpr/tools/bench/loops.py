@@ -1,0 +1,292 @@
+"""The monolithic loop, sessions as subprocesses (CPU from /proc), realtime, scaling."""
+
+from __future__ import annotations
+
+import json
+import os
+import re
+import statistics
+import subprocess
+import sys
+import tempfile
+import threading
+import time
+import uuid
+from collections.abc import Sequence
+from pathlib import Path
+from typing import IO, Any
+
+import numpy as np
+import yaml
+
+from cdpr.config.scenario import Scenario
+from cdpr.protocol import Command, Setpoint, State, Tick
+from cdpr.tools.bench.robots import robot_spec, scenario_yaml
+
+# --------------------------------------------------------------------------------------------------
+# 1. The monolithic loop
+
+
+def monolithic_steps(scenario: Scenario, steps: int, timers: dict[str, float] | None = None) -> float:
+    """Run ``steps`` steps of the loop in this process; returns the wall time (s).
+
+    Per step, exactly the work of the services minus the messaging: the clock's tick (encoded, decoded
+    by the sim and the trajectory), the trajectory's setpoint, the sim's state (decoded by the clock and
+    the controller), the controller's step and command, the sim's decoding of it and its DART step.
+    With ``timers`` the time of each part is added to it (``sim``, ``controller``, ``trajectory``,
+    ``messages``), at the price of a few clock reads per step.
+    """
+    from cdpr.runtime.registry import node_class
+
+    sim_node = node_class("sim")
+    sim, state_message = sim_node.make_core(scenario), sim_node.state_message  # type: ignore[attr-defined]
+    core = node_class("controller").make_core(scenario)
+    setpoint_at = node_class("trajectory").make_core(scenario)
+    m, dt = scenario.robot.m, scenario.dt
+    clock = time.perf_counter
+    if timers is None:
+        t0 = clock()
+        for k in range(steps):
+            tick = Tick(k, k * dt).encode()
+            Tick.decode(tick)
+            setpoint = setpoint_at(Tick.decode(tick).step).encode()
+            state = state_message(sim.state(), 0).encode()
+            State.decode(state)  # the clock
+            st, sp = State.decode(state, m), Setpoint.decode(setpoint)
+            result = core.step(st, sp)
+            command = Command(st.step, st.t, tuple(result.tensions.tolist()), result.feasible, result.status)
+            sim.step(np.asarray(Command.decode(command.encode(), m).tensions))
+        return clock() - t0
+    t0 = clock()
+    for k in range(steps):
+        a = clock()
+        tick = Tick(k, k * dt).encode()
+        Tick.decode(tick)
+        step = Tick.decode(tick).step
+        b = clock()
+        sp_msg = setpoint_at(step)
+        c = clock()
+        setpoint = sp_msg.encode()
+        d = clock()
+        st_msg = state_message(sim.state(), 0)
+        e = clock()
+        state = st_msg.encode()
+        State.decode(state)
+        st, sp = State.decode(state, m), Setpoint.decode(setpoint)
+        f = clock()
+        result = core.step(st, sp)
+        g = clock()
+        command = Command(st.step, st.t, tuple(result.tensions.tolist()), result.feasible, result.status)
+        tensions = np.asarray(Command.decode(command.encode(), m).tensions)
+        h = clock()
+        sim.step(tensions)
+        i = clock()
+        timers["messages"] += (b - a) + (d - c) + (f - e) + (h - g)
+        timers["trajectory"] += c - b
+        timers["sim"] += (e - d) + (i - h)
+        timers["controller"] += g - f
+    return clock() - t0
+
+
+def bench_monolithic(scenario: Scenario, steps: int, repeats: int) -> dict[str, Any]:
+    steps = min(steps, scenario.total_steps)
+    rates = [steps / monolithic_steps(scenario, steps) for _ in range(repeats)]
+    timers = dict.fromkeys(("sim", "controller", "trajectory", "messages"), 0.0)
+    monolithic_steps(scenario, steps, timers)
+    return {
+        "steps": steps,
+        "repeats": repeats,
+        "steps_per_s": statistics.median(rates),
+        "runs_steps_per_s": rates,
+        "us_per_step": {k: 1e6 * v / steps for k, v in timers.items()},
+    }
+
+
+# --------------------------------------------------------------------------------------------------
+# 2, 4, 6. Sessions as subprocesses, with their CPU read from /proc
+
+
+def _children(pid: int) -> list[int]:
+    out: list[int] = []
+    try:
+        for task in os.listdir(f"/proc/{pid}/task"):
+            with open(f"/proc/{pid}/task/{task}/children") as f:
+                out += [int(x) for x in f.read().split()]
+    except OSError:
+        pass
+    return out
+
+
+def _process_cpu(root: int) -> dict[str, float]:
+    """CPU seconds (user + system) of ``root`` and its descendants, by role (``run``, ``sim``, …)."""
+    tick = os.sysconf("SC_CLK_TCK")
+    out: dict[str, float] = {}
+    todo = [root]
+    while todo:
+        pid = todo.pop()
+        todo += _children(pid)
+        try:
+            with open(f"/proc/{pid}/stat") as f:
+                fields = f.read().rsplit(")", 1)[1].split()
+            with open(f"/proc/{pid}/cmdline") as f:
+                argv = f.read().split("\0")
+        except (OSError, IndexError):
+            continue
+        role = argv[argv.index("cdpr") + 1] if "cdpr" in argv[:-1] else "other"
+        out[role] = out.get(role, 0.0) + (int(fields[11]) + int(fields[12])) / tick
+    return out
+
+
+_PROGRESS = re.compile(r"\[cdpr\] step (\d+)/")
+
+
+class SessionRun:
+    """``cdpr run`` in a subprocess; reads its progress lines to measure the CPU of the steady state."""
+
+    def __init__(self, args: Sequence[str], session: str) -> None:
+        self.session = session
+        self.proc = subprocess.Popen(
+            [sys.executable, "-m", "cdpr", "run", *args, "--session", session],
+            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+        )
+        self._marks: list[tuple[int, dict[str, float]]] = []
+        self._stderr: list[str] = []
+        self._reader = threading.Thread(target=self._read, args=(self.proc.stderr,), daemon=True)
+        self._reader.start()
+
+    def _read(self, stream: IO[str]) -> None:
+        for line in stream:
+            match = _PROGRESS.search(line)
+            if match and int(match.group(1)) > 0:
+                self._marks.append((int(match.group(1)), _process_cpu(self.proc.pid)))
+            elif not match:
+                self._stderr.append(line)
+
+    def result(self, timeout: float) -> dict[str, Any]:
+        """Wait for the session; its summary plus ``cpu_us_per_step`` (None when it ran too briefly)."""
+        try:
+            self.proc.wait(timeout=timeout)
+        except subprocess.TimeoutExpired:
+            self.proc.kill()
+            raise
+        assert self.proc.stdout is not None
+        out = self.proc.stdout.read()
+        self._reader.join(timeout=5.0)
+        lines = [ln for ln in out.splitlines() if ln.strip()]
+        try:
+            summary: dict[str, Any] = json.loads(lines[-1])
+        except (IndexError, json.JSONDecodeError):
+            tail = "".join(self._stderr[-5:]).strip()
+            raise RuntimeError(f"cdpr run (session {self.session}) printed no summary: {tail}") from None
+        summary["cpu_us_per_step"] = None
+        summary["cpu_us_per_step_by_process"] = {}
+        if len(self._marks) >= 2:
+            (k0, c0), (k1, c1) = self._marks[0], self._marks[-1]
+            if k1 > k0:
+                by = {r: 1e6 * (c1.get(r, 0.0) - c0.get(r, 0.0)) / (k1 - k0) for r in c1}
+                summary["cpu_us_per_step_by_process"] = by
+                summary["cpu_us_per_step"] = sum(by.values())
+        return summary
+
+
+def _run_sessions(args_list: Sequence[Sequence[str]], tag: str, timeout: float) -> list[dict[str, Any]]:
+    """Start the sessions together, wait for all; their summaries (a failed session raises)."""
+    runs = [SessionRun(args, f"bench{tag}{i}-{uuid.uuid4().hex[:6]}") for i, args in enumerate(args_list)]
+    results = [r.result(timeout) for r in runs]
+    for r in results:
+        if not r.get("exit_ok"):
+            raise RuntimeError(f"session {r.get('session')} did not finish cleanly: {r.get('exit_codes')}")
+    return results
+
+
+def bench_distributed(
+    scenario: str, duration: float | None, repeats: int, monolithic: float
+) -> dict[str, Any]:
+    extra = [] if duration is None else ["--duration", repr(duration)]
+    runs = [_run_sessions([[scenario, *extra]], "loop", 900.0)[0] for _ in range(repeats)]
+    rate = statistics.median(r["rate"] for r in runs)
+    cpu = [r["cpu_us_per_step"] for r in runs if r["cpu_us_per_step"] is not None]
+    by_process: dict[str, list[float]] = {}
+    for r in runs:
+        for k, v in r["cpu_us_per_step_by_process"].items():
+            by_process.setdefault(k, []).append(v)
+    return {
+        "steps": runs[0]["steps"],
+        "repeats": repeats,
+        "steps_per_s": rate,
+        "rtf": statistics.median(r["rtf"] for r in runs),
+        "ratio_to_monolithic": rate / monolithic,
+        "runs_steps_per_s": [r["rate"] for r in runs],
+        "cpu_us_per_step": statistics.median(cpu) if cpu else None,
+        "cpu_us_per_step_by_process": {k: statistics.median(v) for k, v in by_process.items()},
+        "state_digest": runs[0]["state_digest"],
+    }
+
+
+RT_PRIORITY = 10  # the SCHED_FIFO priority of the second realtime run, when the system allows it
+
+
+def rt_priority_allowed(priority: int = RT_PRIORITY) -> bool:
+    """Whether this process may use SCHED_FIFO (tried in a child process, which then exits)."""
+    probe = f"import os; os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param({priority}))"
+    try:
+        return subprocess.run([sys.executable, "-c", probe], capture_output=True, timeout=30).returncode == 0
+    except (OSError, subprocess.TimeoutExpired):
+        return False
+
+
+def bench_realtime(scenario: str, duration: float) -> dict[str, Any]:
+    """The realtime run with the normal scheduler, then (if permitted) with ``--rt-priority``."""
+    keys = ("on_time_fraction", "lateness_p50_ms", "lateness_p99_ms", "lateness_p999_ms", "lateness_max_ms")
+
+    def one(extra: list[str]) -> dict[str, Any]:
+        args = [scenario, "--mode", "realtime", "--duration", repr(duration), *extra]
+        s = _run_sessions([args], "rt", 900.0)[0]
+        return {"duration_s": duration, "steps": s["steps"], "late_ticks": s["late_ticks"],
+                **{k: s[k] for k in keys}}
+
+    result = one([])
+    result["rt_priority"] = (one(["--rt-priority", str(RT_PRIORITY)]) | {"priority": RT_PRIORITY}
+                             if rt_priority_allowed() else None)
+    return result
+
+
+# --------------------------------------------------------------------------------------------------
+# 6. Scaling
+
+
+def bench_sessions(scenario: str, counts: Sequence[int], duration: float) -> list[dict[str, Any]]:
+    out = []
+    for n in counts:
+        runs = _run_sessions([[scenario, "--duration", repr(duration)]] * n, f"s{n}x", 1800.0)
+        steps = sum(r["steps"] for r in runs)
+        cpu = [r["cpu_us_per_step"] for r in runs if r["cpu_us_per_step"] is not None]
+        out.append({
+            "sessions": n,
+            "median_steps_per_s": statistics.median(r["rate"] for r in runs),
+            "aggregate_steps_per_s": sum(r["rate"] for r in runs),
+            "steps": steps,
+            "cpu_us_per_step": statistics.median(cpu) if cpu else None,
+        })
+    return out
+
+
+def bench_cables(counts: Sequence[int], duration: float) -> list[dict[str, Any]]:
+    out = []
+    with tempfile.TemporaryDirectory(prefix="cdpr-bench-") as tmp:
+        for m in counts:
+            robot_file = Path(tmp) / f"bench_{m}_robot.yaml"
+            robot_file.write_text(yaml.safe_dump(robot_spec(m), sort_keys=False), encoding="utf-8")
+            scenario_file = Path(tmp) / f"bench_{m}.yaml"
+            scenario = scenario_yaml(robot_file.name, m, duration)
+            scenario_file.write_text(yaml.safe_dump(scenario, sort_keys=False), encoding="utf-8")
+            run = _run_sessions([[str(scenario_file)]], f"c{m}x", 900.0)[0]
+            out.append({
+                "cables": m,
+                "steps_per_s": run["rate"],
+                "steps": run["steps"],
+                "cpu_us_per_step": run["cpu_us_per_step"],
+                "infeasible_commands": run.get("infeasible_commands"),
+                "rms_position_error": run.get("rms_position_error"),
+            })
+    return out

@@ -1,0 +1,43 @@
+"""What a run measures (:class:`BenchPlan`: full and quick) and the progress log."""
+
+from __future__ import annotations
+
+import sys
+from dataclasses import dataclass
+
+BENCH_VERSION = 1
+
+
+@dataclass(frozen=True)
+class BenchPlan:
+    """How much of each part to run."""
+
+    mono_steps: int  # steps of the monolithic loop (capped at the scenario's)
+    mono_repeats: int
+    loop_duration: float | None  # sim seconds of the distributed run (None: the whole scenario)
+    loop_repeats: int
+    rtt_count: int  # timed round trips
+    realtime_duration: float  # sim seconds in realtime mode
+    tda_sizes: tuple[int, ...]
+    tda_calls: int  # solves per method and size
+    session_counts: tuple[int, ...]
+    session_duration: float
+    cable_counts: tuple[int, ...]
+    cable_duration: float
+
+
+FULL = BenchPlan(
+    mono_steps=11000, mono_repeats=3, loop_duration=None, loop_repeats=3, rtt_count=20000,
+    realtime_duration=60.0, tda_sizes=(4, 8, 12, 16), tda_calls=3000,
+    session_counts=(1, 2, 4, 8), session_duration=6.0, cable_counts=(4, 8, 12, 16), cable_duration=6.0,
+)
+QUICK = BenchPlan(
+    mono_steps=2000, mono_repeats=3, loop_duration=4.0, loop_repeats=1, rtt_count=2000,
+    realtime_duration=3.0, tda_sizes=(4, 8, 16), tda_calls=400,
+    session_counts=(1, 2, 4), session_duration=3.0, cable_counts=(4, 16), cable_duration=3.0,
+)
+
+
+def _log(message: str) -> None:
+    sys.stderr.write(f"[bench] {message}\n")
+    sys.stderr.flush()

@@ -1,0 +1,222 @@
+"""``cdpr robots|ik|tda|workspace|export-sdf``: robot tools (no session, no network)."""
+
+from __future__ import annotations
+
+from typing import Any
+
+import click
+import numpy as np
+
+from cdpr.errors import InputError
+from cdpr.tools.cli import _emit, cli
+
+# ------------------------------------------------------------------------------------------------
+# Robot tools
+
+
+@cli.command()
+@click.argument("robot", required=False)
+def robots(robot: str | None) -> None:
+    """List the shipped robots, or print the summary of ROBOT (a name or a YAML path)."""
+    from cdpr.config.robot import load_robot, shipped_robots
+
+    if robot is None:
+        out = []
+        for name in shipped_robots():
+            r = load_robot(name)
+            out.append({"name": name, "mode": r.mode, "cables": r.m, "mass": r.mass, "description": r.description})
+        _emit(out)
+    else:
+        _emit(load_robot(robot).summary())
+
+
+def _pose(values: tuple[float, ...]) -> tuple[np.ndarray, np.ndarray]:
+    from cdpr.mechanics.rotation import rpy_to_matrix
+
+    if len(values) not in (3, 6):
+        raise InputError(f"--pose: expected X Y Z [ROLL PITCH YAW], got {len(values)} number(s)")
+    if not np.all(np.isfinite(values)):
+        raise InputError("--pose: every number must be finite")
+    rpy = values[3:] if len(values) == 6 else (0.0, 0.0, 0.0)
+    return np.array(values[:3]), rpy_to_matrix(*rpy)
+
+
+@cli.command(context_settings={"ignore_unknown_options": True, "allow_extra_args": True})
+@click.argument("robot")
+@click.pass_context
+def ik(ctx: click.Context, robot: str) -> None:
+    """Inverse kinematics of ROBOT at --pose X Y Z [ROLL PITCH YAW]."""
+    from cdpr.config.robot import load_robot
+    from cdpr.mechanics.kinematics import inverse_kinematics
+
+    groups = _split_numbers(list(ctx.args), ("--pose",))
+    if "--pose" not in groups:
+        raise InputError("--pose X Y Z [ROLL PITCH YAW] is required")
+    r = load_robot(robot)
+    position, R = _pose(_numbers("--pose", tuple(groups["--pose"])))
+    k = inverse_kinematics(r, position, R)
+    _emit({"lengths": k.lengths.tolist(), "directions": k.directions.tolist(),
+           "wrench_matrix": k.wrench_matrix.tolist()})
+
+
+def _numbers(flag: str, raw: tuple[Any, ...]) -> tuple[float, ...]:
+    out = []
+    for x in raw:
+        try:
+            out.append(float(x))
+        except ValueError:
+            raise InputError(f"{flag}: {x!r} is not a number") from None
+    return tuple(out)
+
+
+def _split_numbers(args: list[str], flags: tuple[str, ...]) -> dict[str, list[str]]:
+    """Numbers after --pose / --wrench (which take several values) are collected here."""
+    groups: dict[str, list[str]] = {}
+    current: str | None = None
+    for a in args:
+        if a in flags:
+            current = a
+            groups[a] = []
+        elif current is not None:
+            groups[current].append(a)
+        else:
+            raise InputError(f"unexpected argument {a!r}")
+    return groups
+
+
+@cli.command(context_settings={"ignore_unknown_options": True, "allow_extra_args": True})
+@click.argument("robot")
+@click.option("--static", "static", is_flag=True, help="tensions that hold the platform (plus payload) at rest")
+@click.option("--payload", type=float, default=0.0, show_default=True, help="kg rigidly attached at the centre of mass")
+@click.option("--method", default="qp", show_default=True, help="qp | closed-form | improved-closed-form | continuity")
+@click.option("--tmin", type=float, default=None, help="N (default: the robot's)")
+@click.option("--tmax", type=float, default=None, help="N (default: the robot's)")
+@click.pass_context
+def tda(ctx: click.Context, robot: str, static: bool, payload: float, method: str, tmin: float | None,
+        tmax: float | None) -> None:
+    """Tension distribution of ROBOT at --pose X Y Z [R P Y], for --static or --wrench FX FY FZ MX MY MZ."""
+    from cdpr.config.robot import load_robot
+    from cdpr.mechanics.dynamics import gravity_wrench
+    from cdpr.mechanics.kinematics import inverse_kinematics
+    from cdpr.mechanics.tda import METHODS, make_tda
+
+    groups = _split_numbers(list(ctx.args), ("--pose", "--wrench"))
+    if "--pose" not in groups:
+        raise InputError("--pose X Y Z [ROLL PITCH YAW] is required")
+    if static == ("--wrench" in groups):
+        raise InputError("give exactly one of --static or --wrench FX FY FZ MX MY MZ")
+    if method not in METHODS:
+        raise InputError(f"--method: unknown method {method!r} (known: {', '.join(sorted(METHODS))})")
+    r = load_robot(robot).with_payload(payload)
+    lo = r.tmin if tmin is None else tmin
+    hi = r.tmax if tmax is None else tmax
+    if not (np.isfinite(lo) and np.isfinite(hi)) or lo < 0 or lo > hi:
+        raise InputError(f"--tmin/--tmax: need 0 <= tmin <= tmax, got {lo} and {hi}")
+    position, R = _pose(_numbers("--pose", tuple(groups["--pose"])))
+    rows = list(r.controlled_rows)
+    W = inverse_kinematics(r, position, R).wrench_matrix[rows]
+    if static:
+        w = -gravity_wrench(r)
+        w = w if r.mode == "point_mass" else w[rows]
+    else:
+        wrench = np.array(_numbers("--wrench", tuple(groups["--wrench"])))
+        if wrench.shape != (6,) or not np.all(np.isfinite(wrench)):
+            raise InputError("--wrench: expected 6 finite numbers FX FY FZ MX MY MZ")
+        w = wrench[rows]
+    result = make_tda(method).solve(W, w, lo, hi)
+    _emit(
+        {
+            "tensions": result.tensions.tolist(),
+            "feasible": result.feasible,
+            "residual": result.residual,
+            "method": result.method,
+            "status": result.status,
+        }
+    )
+
+
+# ------------------------------------------------------------------------------------------------
+# Workspace and SDF export (docs/workspace.md)
+
+
+@cli.command()
+@click.argument("robot")
+@click.option("--payload", type=float, default=0.0, show_default=True,
+              help="kg rigidly attached at the centre of mass")
+@click.option("--mass", type=float, default=None,
+              help="whole platform mass, kg (solid-shape inertia), as a scenario's platform.mass")
+@click.option("--step", type=float, default=0.1, show_default=True, help="grid spacing, m (at most)")
+@click.option("--orientation", type=float, nargs=3, default=(0.0, 0.0, 0.0), show_default=True,
+              help="fixed platform orientation: roll pitch yaw, rad")
+@click.option("--tmin", type=float, default=None, help="N (default: the robot's)")
+@click.option("--tmax", type=float, default=None, help="N (default: the robot's)")
+@click.option("--rrd", type=click.Path(), default=None, help="write the points to this .rrd file")
+@click.option("--spawn", is_flag=True, help="show the points in a new Rerun viewer")
+def workspace(robot: str, payload: float, mass: float | None, step: float,
+              orientation: tuple[float, float, float], tmin: float | None, tmax: float | None,
+              rrd: str | None, spawn: bool) -> None:
+    """Static wrench-feasible workspace of ROBOT on a grid over its frame box (JSON; points to Rerun)."""
+    import time
+
+    from cdpr.config.robot import load_robot
+    from cdpr.mechanics.rotation import rpy_to_matrix
+    from cdpr.mechanics.workspace import compute_workspace
+    from cdpr.recording.workspace import record_workspace
+
+    r = load_robot(robot)
+    r = (r if mass is None else r.with_mass(mass)).with_payload(payload)
+    lo, hi = (r.tmin if tmin is None else tmin), (r.tmax if tmax is None else tmax)
+    if not (np.isfinite(lo) and np.isfinite(hi)) or lo < 0 or lo > hi:
+        raise InputError(f"--tmin/--tmax: need 0 <= tmin <= tmax, got {lo} and {hi}")
+    if not (np.isfinite(step) and step > 0):
+        raise InputError(f"--step: must be a positive length in m, got {step}")
+    if not np.all(np.isfinite(orientation)):
+        raise InputError("--orientation: roll, pitch and yaw must be finite")
+    R = rpy_to_matrix(*orientation)
+    start = time.perf_counter()
+    ws = compute_workspace(r, step, R, 0.0, lo, hi)
+    seconds = time.perf_counter() - start
+    box = ws.bounding_box()
+    out: dict[str, Any] = {
+        "robot": r.name, "mass": r.mass, "payload": payload, "tmin": lo, "tmax": hi,
+        "orientation_rpy": list(orientation), "step": step, "spacing": ws.spacing.tolist(),
+        "grid": list(ws.shape),
+        "points": int(ws.points.shape[0]), "feasible": int(ws.feasible.sum()), "fraction": ws.fraction,
+        "bounding_box": None if box is None else {"min": box[0].tolist(), "max": box[1].tolist()},
+        "seconds": seconds, "us_per_point": 1e6 * seconds / max(1, ws.points.shape[0]), "rrd": rrd,
+    }
+    if rrd is not None or spawn:
+        info = {"workspace": dict(out), "robot": r.summary()}
+        out["problems"] = record_workspace(r, ws, R, rrd=rrd, spawn=spawn, info=info)
+    _emit(out)
+
+
+@cli.command("export-sdf")
+@click.argument("robot")
+@click.option("-o", "--output", default=None,
+              help="SDF file to write (default: ROBOT's name + .sdf; - for stdout)")
+@click.option("--tree", is_flag=True,
+              help="leave out the ball joints that close the loops (for tree-only parsers)")
+def export_sdf(robot: str, output: str | None, tree: bool) -> None:
+    """Write ROBOT as an SDF 1.6 world: frame, platform, a U-P-S leg per cable (the seed paper's model)."""
+    import xml.etree.ElementTree as ET
+
+    from cdpr.config.robot import load_robot
+    from cdpr.tools.sdf import sdf_string
+
+    r = load_robot(robot)
+    text = sdf_string(r, close_loops=not tree)
+    if output == "-":
+        click.echo(text, nl=False)
+        return
+    path = output or f"{r.name}.sdf"
+    try:
+        with open(path, "w") as fh:
+            fh.write(text)
+    except OSError as exc:
+        raise InputError(f"-o: cannot write {path}: {exc.strerror or exc}") from None
+    model = ET.fromstring(text).find("world/model")
+    assert model is not None
+    joints = model.findall("joint")
+    _emit({"robot": r.name, "file": path, "links": len(model.findall("link")), "joints": len(joints),
+           "ball_joints": sum(j.get("type") == "ball" for j in joints)})

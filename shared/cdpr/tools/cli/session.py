@@ -1,0 +1,143 @@
+"""``cdpr run|up|sim|trajectory|controller|clock|recorder|router|soak``: sessions and their nodes."""
+
+from __future__ import annotations
+
+import sys
+from collections.abc import Callable
+from typing import Any
+
+import click
+import numpy as np
+
+from cdpr.errors import InputError
+from cdpr.tools.cli import cli
+
+# ------------------------------------------------------------------------------------------------
+# Running sessions
+
+
+def _scenario_options(f: Callable[..., Any]) -> Callable[..., Any]:
+    f = click.option("--duration", type=float, default=None, help="override the scenario's duration (s)")(f)
+    f = click.option("--session", "session_id", default="default", show_default=True, help="session id")(f)
+    return click.argument("scenario")(f)
+
+
+def _rt_option(f: Callable[..., Any]) -> Callable[..., Any]:
+    return click.option("--rt-priority", type=int, default=None, metavar="1-99",
+                        help="run under SCHED_FIFO at this priority (realtime mode on a busy machine; "
+                             "needs CAP_SYS_NICE)")(f)
+
+
+def _load(scenario: str, duration: float | None) -> Any:
+    from cdpr.config.scenario import load_scenario
+
+    if duration is not None and not (np.isfinite(duration) and duration > 0):
+        raise InputError(f"--duration: must be a positive number of seconds, got {duration}")
+    return load_scenario(scenario, {"duration": duration})
+
+
+def _node_command(name: str, help_text: str) -> None:
+    """``cdpr NAME ARGS``: the same as ``python -m cdpr_NAME ARGS`` (options in :mod:`cdpr.runtime.main`)."""
+
+    @cli.command(name, help=help_text, add_help_option=False,
+                 context_settings={"ignore_unknown_options": True, "allow_extra_args": True})
+    @click.argument("args", nargs=-1, type=click.UNPROCESSED)
+    def command(args: tuple[str, ...]) -> None:
+        from cdpr.runtime.main import node_main
+
+        node_main(name, args)
+
+
+_node_command("sim", "Run the sim service (DART physics) for SCENARIO (--help for its options).")
+_node_command("trajectory", "Run the trajectory service for SCENARIO (--help for its options).")
+_node_command("controller",
+              "Run the controller service (feedback linearisation + tension distribution) for SCENARIO.")
+_node_command("clock", "Run the lock-step clock for SCENARIO (--help for its options).")
+_node_command("recorder", "Run the recorder: subscribes to the whole session and logs it to Rerun.")
+
+
+def _run_options(f: Callable[..., Any]) -> Callable[..., Any]:
+    f = click.option("--summary", type=click.Path(), default=None, help="also write the JSON summary here")(f)
+    f = click.option("--connect-viewer", default=None, help="stream the recording to this Rerun viewer URL")(f)
+    f = click.option("--spawn", is_flag=True, help="stream the recording to a new Rerun viewer")(f)
+    f = click.option("--rrd", type=click.Path(), default=None, help="write the recording to this .rrd file")(f)
+    f = click.option("--mode", type=click.Choice(["fast", "realtime"]), default="fast", show_default=True)(f)
+    f = _rt_option(f)
+    return _scenario_options(f)
+
+
+@cli.command()
+@_run_options
+@click.option("--quiet", is_flag=True, help="no progress line")
+def run(**kw: Any) -> None:
+    """Run SCENARIO end to end: every service as a child process on a private loopback network.
+
+    Prints a JSON summary as the last line of stdout.
+    """
+    from cdpr.tools.launch import run_session
+
+    sys.exit(run_session(_load(kw.pop("scenario"), kw.pop("duration")), **kw))
+
+
+@cli.command()
+@_run_options
+@click.option("--without", "without", multiple=True, type=click.Choice(["controller", "trajectory", "sim"]),
+              help="a participant that will join from elsewhere")
+@click.option("--listen", "listen", multiple=True,
+              help="endpoint where remote participants connect (default tcp/127.0.0.1:7447)")
+@click.option("--join-timeout", type=float, default=None,
+              help="give up if a participant has not joined after this many seconds")
+@click.option("--quiet", is_flag=True, help="no progress line")
+def up(**kw: Any) -> None:
+    """Run the services of SCENARIO except --without ones, and wait for those to join over Zenoh."""
+    from cdpr.tools.launch import run_session
+
+    sys.exit(run_session(_load(kw.pop("scenario"), kw.pop("duration")), **kw))
+
+
+# ------------------------------------------------------------------------------------------------
+# Standalone Zenoh router (docker compose, remote participants)
+
+
+@cli.command()
+@click.option("--listen", multiple=True,
+              help="endpoint to listen on (default tcp/0.0.0.0:7447 unless in the config)")
+@click.option("--connect", multiple=True,
+              help="another router to join, e.g. a session's (router-to-router link)")
+@click.option("--zenoh-config", type=click.Path(), default=None,
+              help="Zenoh JSON5 config file (or $ZENOH_CONFIG): TLS, user/password, access control")
+def router(listen: tuple[str, ...], connect: tuple[str, ...], zenoh_config: str | None) -> None:
+    """Run a standalone Zenoh router that sessions' services connect to, until SIGINT/SIGTERM."""
+    import os
+    import time
+
+    from cdpr.runtime.transport import StopFlag, log, open_session
+    from cdpr.runtime.transport import zenoh_config as make_config
+
+    config_file = zenoh_config or os.environ.get("ZENOH_CONFIG")
+    if not listen and not config_file:
+        listen = ("tcp/0.0.0.0:7447",)
+    conf = make_config("router", connect=connect, listen=listen, config_file=config_file)
+    stop = StopFlag().install()
+    with open_session(conf, "router") as session:
+        where = ", ".join(listen) if listen else f"the endpoints of {config_file}"
+        log("router", f"Zenoh router {session.zid()} listening on {where}")
+        while not stop:
+            time.sleep(0.1)
+    log("router", "stopped")
+
+
+@cli.command()
+@click.option("--docs", type=click.Path(), default="docs", show_default=True,
+              help="where results.md and its figures go")
+@click.option("--runs", type=click.Path(), default="runs/experiments", show_default=True,
+              help="where the recordings go")
+@click.option("--duration", type=float, default=None, help="cut every scenario to this many seconds (quick check)")
+@click.option("--only", multiple=True, help="run only these scenarios")
+def experiments(docs: str, runs: str, duration: float | None, only: tuple[str, ...]) -> None:
+    """Re-run the paper's experiments through the distributed loop and regenerate docs/results.md."""
+    from pathlib import Path
+
+    from cdpr.tools.experiments import run_experiments
+
+    sys.exit(run_experiments(Path(docs), Path(runs), duration, only))

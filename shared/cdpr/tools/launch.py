@@ -1,0 +1,272 @@
+"""`cdpr run` and `cdpr up`: start a session's services as child processes and watch it to the end.
+
+The launcher hosts the session's Zenoh router in its own process (listening on loopback by default),
+so no external router is needed. When every service runs on this machine (`cdpr run`, `cdpr up`
+without ``--without``) the children are Zenoh peers: each connects to the router, learns the others
+from it and links to them directly on loopback, so a message of the loop takes one hop. With remote
+participants every service is a client of the router, like the remote ones. Either way a service
+declares its subscribers before its liveliness token, on the same links, so when the clock sees the
+token the service can already be reached. The launcher's own monitor subscribes (on the router
+itself) before any service starts, computes the run summary, and prints it as the last line of
+stdout.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import gc
+import itertools
+import json
+import os
+import signal
+import socket
+import subprocess
+import sys
+import time
+from pathlib import Path
+from typing import Any
+
+import zenoh
+
+from cdpr.config.scenario import Scenario
+from cdpr.errors import InputError
+from cdpr.protocol import Command, Keys, ProtocolError, ServiceStats, Setpoint, State, Status
+from cdpr.runtime.service import PARENT_ENV, set_realtime_priority
+from cdpr.runtime.transport import Inbox, StopFlag, log, open_session, pin_thread_state, zenoh_config
+from cdpr.tools.metrics import RunMetrics
+
+PEER_LISTEN = "tcp/127.0.0.1:0"  # where a local child listens for its peers: loopback, any free port
+STOP_GRACE = 4.0  # seconds a child gets to stop after SIGTERM before it is killed
+FINISH_GRACE = 60.0  # after a normal end, seconds the services get to leave by themselves (the recorder
+#                     may still be writing a large file)
+
+
+def free_port() -> int:
+    with socket.socket(socket.AF_INET, socket.SOCK_STREAM) as s:
+        s.bind(("127.0.0.1", 0))
+        return int(s.getsockname()[1])
+
+
+def local_endpoint(listen: str) -> str:
+    """The endpoint a local child connects to, for a listen endpoint (0.0.0.0 → 127.0.0.1)."""
+    proto, _, addr = listen.partition("/")
+    host, _, port = addr.rpartition(":")
+    if host in ("0.0.0.0", "[::]", ""):
+        host = "127.0.0.1"
+    return f"{proto}/{host}:{port}"
+
+
+class Children:
+    """The service processes of one session; stops them all, whatever happens."""
+
+    def __init__(self) -> None:
+        self.procs: dict[str, subprocess.Popen[bytes]] = {}
+
+    def start(self, name: str, args: list[str]) -> None:
+        env = dict(os.environ, **{PARENT_ENV: str(os.getpid())})
+        self.procs[name] = subprocess.Popen(
+            [sys.executable, "-m", "cdpr.runtime", name, *args], stdout=sys.stderr.fileno(), env=env
+        )
+
+    def failed(self) -> list[tuple[str, int]]:
+        return [(n, p.returncode) for n, p in self.procs.items() if p.poll() is not None and p.returncode != 0]
+
+    def stop(self, wait_first: float) -> dict[str, int]:
+        """Give the children ``wait_first`` seconds to end by themselves, then SIGTERM, then SIGKILL."""
+        for sig, grace in ((None, wait_first), (signal.SIGTERM, STOP_GRACE), (signal.SIGKILL, 2.0)):
+            if sig == signal.SIGKILL:
+                for name, p in self.procs.items():
+                    if p.poll() is None:  # where it is stuck, on its stderr (cdpr.runtime.service: faulthandler)
+                        log("cdpr", f"{name} did not stop within {STOP_GRACE:g} s of SIGTERM; killing it")
+                        p.send_signal(signal.SIGUSR1)
+                time.sleep(0.2)
+            for p in self.procs.values():
+                if sig is not None and p.poll() is None:
+                    p.send_signal(sig)
+            deadline = time.monotonic() + grace
+            while time.monotonic() < deadline and any(p.poll() is None for p in self.procs.values()):
+                time.sleep(0.02)
+            if all(p.poll() is not None for p in self.procs.values()):
+                break
+        for p in self.procs.values():
+            p.wait()
+        return {n: p.returncode for n, p in self.procs.items()}
+
+
+class Tape:
+    """The loop's messages as the launcher's monitor receives them, kept raw and decoded after the run.
+
+    Each sample is appended right in Zenoh's callback, on the thread that received it (the binding's
+    ``indirect=False``): a (kind, bytes) pair per message, no thread woken, no queue. In
+    ``cdpr run`` that thread is the session router's, so the callback must never wait long for this
+    process's GIL: the launcher's main thread only wakes a few times a second while the loop runs,
+    and its long-lived objects are frozen out of the garbage collector's sight (``gc.freeze``).
+    """
+
+    def __init__(self) -> None:
+        self.items: list[tuple[str, bytes]] = []  # (kind, payload) in arrival order
+
+    def subscribe(self, session: zenoh.Session, key: str, kind: str) -> zenoh.Subscriber:
+        add, pin = self.items.append, pin_thread_state
+
+        def on_sample(sample: zenoh.Sample) -> None:
+            pin()
+            add((kind, sample.payload.to_bytes()))  # one append: atomic, whichever thread runs it
+
+        return session.declare_subscriber(key, zenoh.handlers.Callback(on_sample, indirect=False))
+
+
+def run_session(
+    scenario: Scenario,
+    session_id: str = "default",
+    mode: str = "fast",
+    rrd: str | None = None,
+    spawn: bool = False,
+    connect_viewer: str | None = None,
+    summary: str | None = None,
+    quiet: bool = False,
+    without: tuple[str, ...] = (),
+    listen: tuple[str, ...] = (),
+    join_timeout: float | None = None,
+    rt_priority: int | None = None,
+) -> int:
+    try:
+        keys = Keys(session_id)
+    except ValueError as exc:
+        raise InputError(f"--session: {exc}") from None
+    remote = bool(without)
+    listen_eps = list(listen) or ([f"tcp/127.0.0.1:{7447 if remote else free_port()}"])
+    local = local_endpoint(listen_eps[0])
+    recording = bool(rrd or spawn or connect_viewer)
+    expected = ["sim", "trajectory", "controller"] + (["recorder"] if recording else [])
+    if rt_priority is not None:
+        # the session's router (this process); each loop service sets its own (--rt-priority below),
+        # the recorder keeps the normal scheduling (it writes in bursts: no CPU to take from the loop)
+        set_realtime_priority(rt_priority, inherited=False)
+    stop = StopFlag().install()
+    conf = zenoh_config("router", listen=listen_eps)
+    metrics = RunMetrics()
+    raw: list[tuple[str, bytes]] = []
+    faults: dict[str, dict[str, int]] = {}
+    m = scenario.robot.m
+    final: Status | None = None
+    children = Children()
+    started = time.monotonic()
+    exit_ok = False
+    with open_session(conf, "cdpr run") as session:
+        inbox = Inbox()
+        tape = Tape()
+        subs = [
+            tape.subscribe(session, keys.state, "state"),
+            tape.subscribe(session, keys.setpoint, "setpoint"),
+            tape.subscribe(session, keys.command, "command"),
+            inbox.subscribe(session, keys.status, "status"),
+            inbox.subscribe(session, keys.stats_all, "stats"),
+        ]
+        # What the launcher made so far lives as long as the run: out of the garbage collector's sight
+        # (a full collection would otherwise scan it all, holding the GIL the tape's callbacks need).
+        gc.collect()
+        gc.freeze()
+        # All on this machine: the children are peers, linked to each other directly on loopback (a
+        # message takes one hop instead of two through the router, which the launcher's process would
+        # have to forward); the router then only introduces them and serves the monitor. With remote
+        # participants, every service is a client of the router, as the remote ones are.
+        mode_args = ["--zenoh-mode", "client"] if remote else ["--zenoh-mode", "peer", "--listen", PEER_LISTEN]
+        common = [scenario.source, "--session", session_id, "--duration", repr(scenario.duration),
+                  *mode_args, "--connect", local]
+        loop = [*common, "--rt-priority", str(rt_priority)] if rt_priority is not None else common
+        try:
+            if remote:
+                log("cdpr", f"waiting for {', '.join(without)} to join session {session_id!r} "
+                    f"at {', '.join(listen_eps)}")
+            children.start("clock", [*loop, "--mode", mode, "--expect", ",".join(expected)])
+            for name in ("sim", "trajectory", "controller"):
+                if name not in without:
+                    children.start(name, loop)
+            if recording:
+                rec = [*common]
+                if rrd:
+                    Path(rrd).parent.mkdir(parents=True, exist_ok=True)
+                    rec += ["--rrd", rrd]
+                if spawn:
+                    rec += ["--spawn"]
+                if connect_viewer:
+                    rec += ["--connect-viewer", connect_viewer]
+                children.start("recorder", rec)
+            last_progress = 0.0
+            while not stop:
+                for ev in inbox.drain(0.2):
+                    if ev.kind == "status":
+                        with contextlib.suppress(ProtocolError):
+                            final = Status.decode(ev.payload)
+                    else:
+                        raw.append((ev.kind, ev.payload))
+                if final is not None and final.state in ("finished", "aborted"):
+                    exit_ok = final.state == "finished"
+                    break
+                if failed := children.failed():
+                    log("cdpr", "stopping: " + ", ".join(f"{n} exited with code {c}" for n, c in failed))
+                    break
+                now = time.monotonic()
+                joined = final is not None and final.state != "waiting"
+                if join_timeout is not None and not joined and now - started > join_timeout:
+                    log("cdpr", f"stopping: participants did not join within {join_timeout:g} s")
+                    break
+                if not quiet and now - last_progress >= 1.0:
+                    last_progress = now
+                    k = final.step if final is not None else 0
+                    n = scenario.total_steps
+                    rate = final.stats.get("rate", 0.0) if final is not None else 0.0
+                    log("cdpr", f"step {max(k, 0)}/{n} ({100.0 * max(k, 0) / n:.0f} %), {rate:.0f} steps/s")
+        finally:
+            # After a normal end the services leave by themselves; otherwise they are told to.
+            codes = children.stop(wait_first=FINISH_GRACE if exit_ok else 0.0)
+            raw.extend((ev.kind, ev.payload) for ev in inbox.drain(0.05))  # the services' last words
+            for s in subs:
+                s.undeclare()
+    for kind, payload in itertools.chain(tape.items, raw):
+        try:
+            if kind == "state":
+                metrics.add_state(State.decode(payload, m), payload)
+            elif kind == "setpoint":
+                metrics.add_setpoint(Setpoint.decode(payload))
+            elif kind == "command":
+                metrics.add_command(Command.decode(payload, m))
+            elif kind == "stats":
+                stats_msg = ServiceStats.decode(payload)
+                faults[stats_msg.service] = stats_msg.counters
+        except ProtocolError:
+            pass  # the services log and count bad messages; the summary ignores them
+    if stop.signal is not None:
+        log("cdpr", "interrupted; every service stopped")
+    stats = final.stats if final is not None else {}
+    children_ok = all(c == 0 for c in codes.values())
+    result: dict[str, Any] = {
+        "scenario": scenario.name,
+        "session": session_id,
+        "mode": mode,
+        "steps": metrics.last_step if metrics.last_step >= 0 else 0,
+        "total_steps": scenario.total_steps,
+        "sim_time": max(metrics.last_step, 0) * scenario.dt,
+        "wall_time": stats.get("wall_time"),
+        "rate": stats.get("rate"),
+        "rtf": stats.get("rtf"),
+        **metrics.summary(),
+        "late_ticks": stats.get("late_ticks"),
+        "faults": {k: v for k, v in {**stats.get("faults", {}), **faults}.items() if v},
+        "resends": stats.get("resends"),
+        "rrd": rrd,
+        "exit_codes": codes,
+        "exit_ok": bool(exit_ok and children_ok and stop.signal is None),
+    }
+    for key in ("lateness_p50_ms", "lateness_p99_ms", "lateness_p999_ms", "lateness_max_ms", "on_time_fraction"):
+        if key in stats:
+            result[key] = stats[key]
+    line = json.dumps(result)
+    if summary:
+        Path(summary).parent.mkdir(parents=True, exist_ok=True)
+        Path(summary).write_text(json.dumps(result, indent=2) + "\n", encoding="utf-8")
+    print(line, flush=True)
+    if stop.signal is not None:
+        return 128 + stop.signal
+    return 0 if result["exit_ok"] else 1

@@ -1,0 +1,298 @@
+"""``cdpr report``: read a recording back and write the paper's figures and a summary.
+
+The recording is read with :class:`rerun.chunk.RrdReader` (every scalar series, by entity path from
+:mod:`cdpr.recording`). The summary uses the very definitions of ``cdpr run``'s summary: the recorded
+states, setpoints and commands are rebuilt as protocol messages and fed to
+:class:`cdpr.tools.metrics.RunMetrics`. A state's ``t`` is ``step · dt`` (as the sim computes it), and state 0
+has zero tensions (nothing applied yet), so a complete recording gives the run's ``state_digest`` bit
+for bit.
+"""
+
+from __future__ import annotations
+
+import json
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
+
+from cdpr import recording
+from cdpr.errors import InputError
+from cdpr.protocol import Command, Setpoint, State
+from cdpr.tools.metrics import RunMetrics
+
+FIGURE_SIZE = (12.0, 8.0)  # inches; at FIGURE_DPI this is the PNG's size in pixels
+FIGURE_DPI = 100
+TRACKING_PNG = "tracking.png"
+ORIENTATION_PNG = "orientation_error.png"
+SUMMARY_JSON = "summary.json"
+
+
+@dataclass(frozen=True)
+class Series:
+    """One entity's scalar rows, sorted by step: ``values`` is (n, k) for k scalars per row."""
+
+    step: NDArray[np.int64]
+    t: NDArray[np.float64]  # sim_time, s
+    values: NDArray[np.float64]
+
+    def at(self, steps: NDArray[np.int64]) -> NDArray[np.float64]:
+        """Rows for exactly these steps (KeyError naming the first missing step)."""
+        if len(self.step) == 0:
+            if len(steps):
+                raise KeyError(int(steps[0]))
+            return self.values[:0]
+        idx = np.clip(np.searchsorted(self.step, steps), 0, len(self.step) - 1)
+        bad = self.step[idx] != steps
+        if bad.any():
+            raise KeyError(int(steps[bad][0]))
+        return self.values[idx]
+
+
+EMPTY = Series(np.zeros(0, np.int64), np.zeros(0), np.zeros((0, 1)))
+
+
+@dataclass(frozen=True)
+class RecordingData:
+    path: str
+    recording_id: str
+    session: dict[str, Any]
+    series: dict[str, Series] = field(default_factory=dict)
+    blueprints: int = 0
+
+    def get(self, path: str) -> Series:
+        return self.series.get(path, EMPTY)
+
+
+def _series(parts: list[tuple[NDArray[np.int64], NDArray[np.float64], NDArray[np.float64]]]) -> Series:
+    step = np.concatenate([p[0] for p in parts])
+    t = np.concatenate([p[1] for p in parts])
+    width = max(p[2].shape[1] for p in parts)
+    values = np.concatenate([p[2] for p in parts if p[2].shape[1] == width])
+    order = np.argsort(step, kind="stable")
+    step, t, values = step[order], t[order], values[order]
+    keep = np.ones(len(step), dtype=bool)
+    keep[1:] = step[1:] != step[:-1]  # one row per step: the first one logged
+    return Series(step[keep], t[keep], values[keep])
+
+
+def read_recording(path: str | Path) -> RecordingData:
+    """Every scalar series and the session description of a cdpr recording."""
+    import pyarrow as pa
+    import pyarrow.compute as pc
+    from rerun.chunk import RrdReader
+
+    p = Path(path)
+    if not p.is_file():
+        raise InputError(f"{p}: no such file")
+    try:
+        reader = RrdReader(str(p))
+        recordings = reader.recordings()
+        blueprints = len(reader.blueprints())
+        chunks = reader.stream().to_chunks() if recordings else []
+    except Exception as exc:  # the reader raises various errors on a file that is not an .rrd
+        raise InputError(
+            f"{p}: not a readable Rerun recording ({str(exc).splitlines()[0] if str(exc) else exc})"
+        ) from None
+    if not recordings:
+        raise InputError(f"{p}: the file holds no recording")
+    session: dict[str, Any] | None = None
+    parts: dict[str, list[tuple[Any, Any, Any]]] = {}
+    for chunk in chunks:
+        entity = chunk.entity_path.lstrip("/")
+        batch = chunk.to_record_batch()
+        names = batch.schema.names
+        if entity == recording.SESSION and recording.TEXT_DOCUMENT_COLUMN in names:
+            session = json.loads(batch.column(recording.TEXT_DOCUMENT_COLUMN)[0].as_py()[0])
+            continue
+        if recording.SCALARS_COLUMN not in names or recording.STEP not in names or chunk.num_rows == 0:
+            continue
+        col = batch.column(recording.SCALARS_COLUMN)
+        lengths = pc.list_value_length(col).fill_null(0).to_numpy(zero_copy_only=False)
+        k = int(lengths.max())
+        rows = lengths == k
+        values = col.filter(pa.array(rows)).flatten().to_numpy(zero_copy_only=False).reshape(-1, k)
+        step = batch.column(recording.STEP).to_numpy()[rows]
+        t = (
+            batch.column(recording.SIM_TIME).cast(pa.int64()).to_numpy()[rows] * 1e-9
+            if recording.SIM_TIME in names
+            else np.full(int(rows.sum()), np.nan)
+        )
+        parts.setdefault(entity, []).append((step.astype(np.int64), t, values.astype(float)))
+    if session is None:
+        raise InputError(f"{p}: not a cdpr recording (no /{recording.SESSION} description)")
+    series = {name: _series(v) for name, v in parts.items()}
+    return RecordingData(str(p), recordings[0].recording_id, session, series, blueprints)
+
+
+def metrics_from(data: RecordingData) -> RunMetrics:
+    """The recorded streams as protocol messages in a :class:`RunMetrics` (the run's own definitions)."""
+    dt = float(data.session["dt"])
+    m = int(data.session["cables"])
+    metrics = RunMetrics()
+    pos = data.get(recording.ACTUAL_POSITION)
+    steps = pos.step
+    if len(steps):
+        try:
+            quat = data.get(recording.ACTUAL_QUATERNION).at(steps)
+            twist = data.get(recording.ACTUAL_TWIST).at(steps)
+            lengths = data.get(recording.CABLE_LENGTHS).at(steps)
+            clamped = data.get(recording.CLAMPED).at(steps)[:, 0]
+            later = steps[steps > 0]
+            tensions = np.zeros((len(steps), m))
+            tensions[steps > 0] = np.column_stack(
+                [data.get(recording.tension_series(i)).at(later)[:, 0] for i in range(m)]
+            )
+        except KeyError as exc:
+            raise InputError(
+                f"{data.path}: incomplete recording: no state data for step {exc.args[0]}"
+            ) from None
+        for j, k in enumerate(steps.tolist()):
+            state = State(
+                k,
+                k * dt,
+                (*pos.values[j].tolist(), *quat[j].tolist()),
+                tuple(twist[j].tolist()),
+                tuple(lengths[j].tolist()),
+                tuple(tensions[j].tolist()),
+                int(clamped[j]),
+            )
+            metrics.add_state(state, state.encode())
+    desired = data.get(recording.DESIRED_POSITION)
+    if len(desired.step):
+        try:
+            dq = data.get(recording.DESIRED_QUATERNION).at(desired.step)
+        except KeyError as exc:
+            raise InputError(
+                f"{data.path}: incomplete recording: no setpoint data for step {exc.args[0]}"
+            ) from None
+        zeros = (0.0,) * 6
+        for j, k in enumerate(desired.step.tolist()):
+            metrics.add_setpoint(
+                Setpoint(k, k * dt, (*desired.values[j].tolist(), *dq[j].tolist()), zeros, zeros)
+            )
+    feasible = data.get(recording.COMMAND_FEASIBLE)
+    for k, f in zip(feasible.step.tolist(), feasible.values[:, 0].tolist(), strict=True):
+        metrics.add_command(Command(k, k * dt, (), bool(f >= 0.5)))
+    return metrics
+
+
+def summarize(data: RecordingData) -> dict[str, Any]:
+    """The run summary's fields that a recording determines (same names and definitions as ``cdpr run``)."""
+    metrics = metrics_from(data)
+    info = data.session
+    last = max(metrics.last_step, 0)
+    tension_series = sum(
+        1 for i in range(int(info["cables"])) if len(data.get(recording.tension_series(i)).step)
+    )
+    return {
+        "recording": data.path,
+        "recording_id": data.recording_id,
+        "scenario": info.get("scenario"),
+        "session": info.get("session"),
+        "steps": last,
+        "total_steps": info.get("total_steps"),
+        "sim_time": last * float(info["dt"]),
+        **metrics.summary(),
+        "recorded_states": len(metrics.states),
+        "recorded_setpoints": len(metrics.setpoints),
+        "recorded_commands": metrics.commands,
+        "tension_series": tension_series,
+    }
+
+
+def _plot_xyz(ax: Any, s: Series, title: str, unit: str) -> None:
+    styles = ("-", "--", "-.")  # x and y often coincide (diagonal moves): dashes keep both visible
+    for j, (name, rgb) in enumerate(zip(recording.AXES, recording.AXIS_COLORS, strict=True)):
+        if s.values.shape[1] > j and len(s.step):
+            ax.plot(s.t, s.values[:, j], color=np.array(rgb) / 255.0, linestyle=styles[j], label=name)
+    ax.set_title(title)
+    ax.set_xlabel("time (s)")
+    ax.set_ylabel(unit)
+    ax.grid(True, alpha=0.3)
+    ax.legend(loc="best", fontsize="small")
+
+
+def plot_tracking(data: RecordingData, out: str | Path) -> None:
+    """The paper's Fig. 2/3 layout: desired (upper left) and actual positions (upper right), position
+    errors (lower left), cable tensions (lower right)."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    info = data.session
+    m, tmin, tmax = int(info["cables"]), float(info["tmin"]), float(info["tmax"])
+    fig, axes = plt.subplots(2, 2, figsize=FIGURE_SIZE, dpi=FIGURE_DPI)
+    _plot_xyz(axes[0, 0], data.get(recording.DESIRED_POSITION), "Desired position", "m")
+    _plot_xyz(axes[0, 1], data.get(recording.ACTUAL_POSITION), "Actual position", "m")
+    _plot_xyz(axes[1, 0], data.get(recording.POSITION_ERROR_AXES), "Position error (desired − actual)", "m")
+    norm = data.get(recording.POSITION_ERROR_NORM)
+    if len(norm.step):
+        axes[1, 0].plot(norm.t, norm.values[:, 0], color="black", linestyle="--", linewidth=0.8, label="norm")
+        axes[1, 0].legend(loc="best", fontsize="small")
+    ax = axes[1, 1]
+    palette = recording.tension_palette(m)
+    lo, hi = np.inf, -np.inf
+    for i in range(m):
+        s = data.get(recording.tension_series(i))
+        if len(s.step):
+            ax.plot(
+                s.t, s.values[:, 0], color=np.array(palette[i]) / 255.0, linewidth=0.9, label=f"cable {i}"
+            )
+            lo, hi = min(lo, float(s.values.min())), max(hi, float(s.values.max()))
+    if np.isfinite(lo):
+        pad = max(0.05 * (hi - lo), 1e-6 * max(abs(hi), 1.0), 0.5)
+        ax.set_ylim(lo - pad, hi + pad)  # the limits are drawn only where they fall inside the data's range
+    ax.axhline(tmin, color="grey", linestyle="--", linewidth=1.0, label="tmin")
+    ax.axhline(tmax, color="red", linestyle="--", linewidth=1.0, label="tmax")
+    ax.set_title(f"Cable tensions (limits {tmin:g} – {tmax:g} N)")
+    ax.set_xlabel("time (s)")
+    ax.set_ylabel("N")
+    ax.grid(True, alpha=0.3)
+    ax.legend(loc="best", fontsize="x-small", ncol=2)
+    fig.suptitle(f"{info.get('scenario', '')}: session {info.get('session', '')}")
+    fig.tight_layout()
+    fig.savefig(out, dpi=FIGURE_DPI)
+    plt.close(fig)
+
+
+def plot_orientation(data: RecordingData, out: str | Path) -> None:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, ax = plt.subplots(1, 1, figsize=(FIGURE_SIZE[0], FIGURE_SIZE[1] / 2), dpi=FIGURE_DPI)
+    _plot_xyz(ax, data.get(recording.ORIENTATION_ERROR_AXES), "Orientation error (rotation vector)", "rad")
+    norm = data.get(recording.ORIENTATION_ERROR_NORM)
+    if len(norm.step):
+        ax.plot(norm.t, norm.values[:, 0], color="black", linestyle="--", linewidth=0.8, label="norm")
+        ax.legend(loc="best", fontsize="small")
+    fig.tight_layout()
+    fig.savefig(out, dpi=FIGURE_DPI)
+    plt.close(fig)
+
+
+def default_out_dir(rrd: str | Path) -> Path:
+    p = Path(rrd)
+    return p.with_name(f"{p.stem}_report")
+
+
+def write_report(rrd: str | Path, out_dir: str | Path | None = None) -> dict[str, Any]:
+    """Read ``rrd``; write ``tracking.png``, ``orientation_error.png`` and ``summary.json`` into ``out_dir``
+    (default: ``<name>_report/`` beside the file). Returns the summary and the files written."""
+    data = read_recording(rrd)
+    out = Path(out_dir) if out_dir is not None else default_out_dir(rrd)
+    try:
+        out.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        raise InputError(f"-o: cannot create {out}: {exc.strerror or exc}") from None
+    summary = summarize(data)
+    files = [out / TRACKING_PNG, out / ORIENTATION_PNG, out / SUMMARY_JSON]
+    plot_tracking(data, files[0])
+    plot_orientation(data, files[1])
+    files[2].write_text(json.dumps(summary, indent=2) + "\n", encoding="utf-8")
+    return {"summary": summary, "files": [str(f) for f in files]}
