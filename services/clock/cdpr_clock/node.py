@@ -24,6 +24,7 @@ from cdpr.runtime.transport import Event, Inbox, RateLimitedLog, log
 from cdpr_clock.core import ClockCore
 
 LINGER = 2.0  # seconds the clock keeps announcing "finished" while participants leave
+WAIT_LOG_FIRST, WAIT_LOG_EVERY = 2.0, 5.0  # "waiting for ..." lines before the start: the first, then every
 
 
 class ClockNode(Node):
@@ -39,6 +40,7 @@ class ClockNode(Node):
         lookahead: int = 1,
         resend_after: float = 1.0,
         status_period: float = 1.0,
+        join_timeout: float = 0.0,
     ) -> None:
         super().__init__(keys)
         self.scenario = scenario
@@ -53,6 +55,9 @@ class ClockNode(Node):
         self.finished_at: float | None = None
         self.faults: dict[str, dict[str, int]] = {}  # every service's fault counters (stats/{service})
         self.warn = RateLimitedLog(self.name)
+        self.join_timeout = join_timeout  # seconds for every participant to join (0: no limit)
+        self._waiting_since: float | None = None  # the first idle() in state "waiting"
+        self._next_wait_log = 0.0
         self._tick: zenoh.Publisher | None = None
         self._status: zenoh.Publisher | None = None
         self._info = encode_session_info(scenario)
@@ -67,6 +72,9 @@ class ClockNode(Node):
                        help="ticks issued ahead of the sim (0: strict one-step handshake; default: %(default)s)")
         g.add_argument("--resend-after", type=float, default=1.0, metavar="S",
                        help="seconds without progress before the pending ticks are repeated (default: %(default)s)")
+        g.add_argument("--join-timeout", type=float, default=0.0, metavar="S",
+                       help="abort (exit code 1) if a participant has not joined S seconds after the start "
+                            "(0: wait for ever; default: %(default)s)")
 
     @classmethod
     def from_args(cls, scenario: Scenario, keys: Keys, args: argparse.Namespace) -> ClockNode:
@@ -76,8 +84,10 @@ class ClockNode(Node):
             raise InputError(f"--expect: unknown participant(s) {', '.join(unknown)}")
         if not args.resend_after >= 0.01:
             raise InputError(f"--resend-after: must be at least 0.01 s, got {args.resend_after}")
+        if not args.join_timeout >= 0:
+            raise InputError(f"--join-timeout: must be 0 (no limit) or a number of seconds, got {args.join_timeout}")
         return cls(scenario, keys, expected=names, realtime=args.mode == "realtime", lookahead=args.lookahead,
-                   resend_after=args.resend_after)
+                   resend_after=args.resend_after, join_timeout=args.join_timeout)
 
     @property
     def missing(self) -> tuple[str, ...]:
@@ -151,6 +161,8 @@ class ClockNode(Node):
         return self.idle_period if wait is None else min(wait, self.idle_period)
 
     def idle(self, now: float) -> None:
+        if self.state == "waiting":
+            self.check_joining(now)
         if self.finished_at is not None:
             if now - self.last_status >= 0.25:
                 self.publish_status(now)
@@ -211,6 +223,20 @@ class ClockNode(Node):
         self.finished_at = now
         self.exit_code = 1
         self.set_state("aborted", reason, now)
+
+    def check_joining(self, now: float) -> None:
+        """Before the start: say who is missing every few seconds; abort once ``join_timeout`` has passed."""
+        if self._waiting_since is None:
+            self._waiting_since, self._next_wait_log = now, now + WAIT_LOG_FIRST
+        waited = now - self._waiting_since
+        if self.join_timeout > 0 and waited > self.join_timeout:
+            joined = [s for s in self.expected if s in self.present]
+            self.abort(f"{', '.join(self.missing)} did not join session {self.keys.session!r} within "
+                       f"{self.join_timeout:g} s (joined: {', '.join(joined) or 'none'})", now)
+        elif now >= self._next_wait_log:
+            self._next_wait_log = now + WAIT_LOG_EVERY
+            log(self.name, f"waiting for {', '.join(self.missing)} to join session {self.keys.session!r} "
+                f"({waited:.0f} s)")
 
     def finish(self, now: float) -> None:
         self.finished_at = now
