@@ -1,0 +1,69 @@
+"""The results table: one row per point (parameters, metrics, status, wall time, node), CSV and Parquet."""
+
+from __future__ import annotations
+
+import csv
+import math
+from pathlib import Path
+from typing import Any
+
+from cdpr.tools.study.spec import SUMMARY_METRICS, StudySpec
+
+TOLERANCE = 1e-9  # N: a tension this close to a limit is within it
+
+
+def metrics_of(summary: dict[str, Any], names: list[str], limits: tuple[float, float] | None) -> dict[str, Any]:
+    """The study's metrics from a session summary (None where the summary has no value)."""
+    out: dict[str, Any] = {}
+    tmin, tmax = summary.get("tension_min"), summary.get("tension_max")
+    for name in names:
+        if name in SUMMARY_METRICS:
+            value = summary.get(name)
+            out[name] = value if isinstance(value, int | float) and not isinstance(value, bool) else None
+        elif name == "tension_range":
+            out[name] = tmax - tmin if tmin is not None and tmax is not None else None
+        elif name == "tensions_within_limits":
+            if tmin is None or tmax is None or limits is None:
+                out[name] = None
+            else:
+                out[name] = int(limits[0] - TOLERANCE <= tmin and tmax <= limits[1] + TOLERANCE)
+    return out
+
+
+def row_columns(spec: StudySpec) -> list[str]:
+    return ["point", "id", "sample", *[p.column for p in spec.parameters], *spec.metrics, "status", "error",
+            "wall_s", "node", "host", "mode", "state_digest", "rrd"]
+
+
+def _cell(value: Any) -> Any:
+    if isinstance(value, float) and not math.isfinite(value):
+        return None
+    return value
+
+
+def write_table(rows: list[dict[str, Any]], columns: list[str], stem: Path) -> tuple[Path, Path]:
+    """``stem``.csv and ``stem``.parquet, rows in point order."""
+    import pyarrow as pa
+    import pyarrow.parquet as pq
+
+    rows = sorted(rows, key=lambda r: r.get("point", r.get("trial", 0)))
+    data: dict[str, list[Any]] = {c: [_cell(r.get(c)) for r in rows] for c in columns}
+    arrays = {}
+    for name, values in data.items():
+        kinds = {type(v) for v in values if v is not None}
+        if kinds <= {int, float} and float in kinds:
+            values = [None if v is None else float(v) for v in values]
+        elif len(kinds) > 1:  # mixed (a parameter of numbers and strings): as text
+            values = [None if v is None else str(v) for v in values]
+        arrays[name] = pa.array(values) if kinds else pa.array(values, type=pa.null())
+    pq.write_table(pa.table(arrays), stem.with_suffix(".parquet"))
+    with open(stem.with_suffix(".csv"), "w", newline="", encoding="utf-8") as f:
+        writer = csv.writer(f)
+        writer.writerow(columns)
+        for r in rows:
+            writer.writerow(["" if _cell(r.get(c)) is None else _fmt(r.get(c)) for c in columns])
+    return stem.with_suffix(".csv"), stem.with_suffix(".parquet")
+
+
+def _fmt(v: Any) -> Any:
+    return repr(v) if isinstance(v, float) else v
