@@ -54,9 +54,9 @@ def connect_ray(address: str | None) -> dict[str, Any]:
 class Progress:
     """One progress line on stderr with the ETA (redrawn in place on a terminal, every few s otherwise)."""
 
-    def __init__(self, total: int, done: int, label: str, enabled: bool = True) -> None:
+    def __init__(self, total: int, done: int, label: str, enabled: bool = True, unit: str = "points") -> None:
         self.total, self.done, self.first, self.failed = total, done, done, 0
-        self.label, self.enabled = label, enabled
+        self.label, self.enabled, self.unit = label, enabled, unit
         self.started = time.monotonic()
         self.tty = sys.stderr.isatty()
         self.last = 0.0
@@ -80,7 +80,7 @@ class Progress:
         width = 24
         filled = int(width * self.done / self.total) if self.total else width
         bar = "#" * filled + "." * (width - filled)
-        text = (f"[{self.label}] [{bar}] {self.done}/{self.total} points, {self.failed} failed, "
+        text = (f"[{self.label}] [{bar}] {self.done}/{self.total} {self.unit}, {self.failed} failed, "
                 f"{_clock(elapsed)} elapsed, {eta}")
         sys.stderr.write(("\r" + text + "\x1b[K") if self.tty else text + "\n")
         if self.tty and (final or not left):
@@ -243,7 +243,7 @@ def write_outputs(prep: Prepared, ran: int, wall: float, cluster: dict[str, Any]
     return {
         "study": prep.spec.name, "out": str(prep.out), "points": len(rows), "ok": ok, "failed": len(rows) - ok,
         "ran": ran, "resumed": prep.resumed,
-        "mode": prep.mode, "wall_s": round(wall, 3),
+        "mode": ", ".join(sorted({_point_mode(p, prep.mode) for p in prep.points})), "wall_s": round(wall, 3),
         "steps_per_s": round(steps / wall, 1) if wall > 0 and steps else None,
         "nodes": cluster.get("nodes"), "cpus": cluster.get("cpus"),
         "table": [str(csv_path), str(parquet_path)], "plots": [str(p) for p in plots],

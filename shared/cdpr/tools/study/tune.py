@@ -18,6 +18,7 @@ from __future__ import annotations
 import copy
 import json
 import math
+import os
 import tempfile
 import time
 from pathlib import Path
@@ -173,12 +174,17 @@ def run_tune(study_file: str | Path, out: Path | None = None, address: str | Non
         write_point_files(probe, Path(tmp))
         check_point(probe, Path(tmp))
 
+    # Tune's own console output (tables, hints) and per-trial logger files: the table and plots are ours
+    os.environ.setdefault("RAY_AIR_NEW_OUTPUT", "0")
+    os.environ.setdefault("TUNE_DISABLE_AUTO_CALLBACK_LOGGERS", "1")
+    import optuna
     import ray
     from ray import tune
     from ray.tune.schedulers import ASHAScheduler
     from ray.tune.search import ConcurrencyLimiter
     from ray.tune.search.optuna import OptunaSearch
 
+    optuna.logging.set_verbosity(optuna.logging.WARNING)
     cluster = connect_ray(address)
     t = spec.tune
     concurrent = t.concurrent or max(1, int(cluster["cpus"] // spec.cpus_per_point))
@@ -187,7 +193,7 @@ def run_tune(study_file: str | Path, out: Path | None = None, address: str | Non
                                   max_concurrent=concurrent)
     scheduler = (ASHAScheduler(time_attr="training_iteration", max_t=len(t.fidelities), grace_period=1,
                                reduction_factor=2) if len(t.fidelities) > 1 else None)
-    bar = Progress(t.trials, 0, f"tune {spec.name}", progress)
+    bar = Progress(t.trials, 0, f"tune {spec.name}", progress, unit="trials")
 
     class Bar(tune.Callback):
         def on_trial_complete(self, iteration: int, trials: list[Any], trial: Any, **info: Any) -> None:
