@@ -105,11 +105,11 @@ def main():
             inbox.put((name, sample.payload.to_bytes()))
 
         subs = [session.declare_subscriber(f"{prefix}/{name}", lambda s, n=name: on_sample(s, n))
-                for name in ("sim/state", "trajectory/setpoint", "clock/status")]
+                for name in ("sim/state", "trajectory/setpoints", "clock/status")]
         pub = session.declare_publisher(f"{prefix}/controller/command", priority=zenoh.Priority.REAL_TIME,
                                         congestion_control=zenoh.CongestionControl.BLOCK, express=True)
         token = session.liveliness().declare_token(f"{prefix}/alive/controller")
-        states, setpoints, answered, code = {}, {}, -1, 130
+        setpoints, waiting, answered, code = {}, None, -1, 130
         while not stop.is_set():  # 3. answer state k once setpoint k is there; answer a repeated state again
             try:
                 name, payload = inbox.get(timeout=0.2)
@@ -121,16 +121,24 @@ def main():
                     code = 0 if msg["state"] == "finished" else 1
                     break
                 continue
-            k = msg["step"]
-            (states if name == "sim/state" else setpoints)[k] = msg
-            again = name == "sim/state" and k <= answered
-            if k in states and k in setpoints and (k > answered or again):
-                f = control(states[k], setpoints[k])
-                pub.put(msgpack.packb({"v": 1, "step": k, "t": states[k]["t"], "tensions": f.tolist()}))
-                answered = max(answered, k)
-                for book in (states, setpoints):
-                    for old in [j for j in book if j < k]:
-                        del book[old]
+            if name == "trajectory/setpoints":  # a block: row i is the setpoint of step first + i
+                for i, t in enumerate(msg["t"]):
+                    setpoints[msg["first"] + i] = {"t": t, "pose": msg["pose"][7 * i:7 * i + 7],
+                                                   "twist": msg["twist"][6 * i:6 * i + 6]}
+                state = waiting
+                if state is None or state["step"] <= answered:
+                    continue
+            else:
+                state = msg
+            k = state["step"]
+            if k not in setpoints:
+                waiting = state
+                continue
+            waiting = None
+            f = control(state, setpoints[k])
+            pub.put(msgpack.packb({"v": 2, "step": k, "t": state["t"], "tensions": f.tolist()}))
+            answered = max(answered, k)
+            setpoints.pop(k - 1, None)
         token.undeclare()
         for s in subs:
             s.undeclare()

@@ -24,7 +24,7 @@ import msgpack
 import pytest
 import zenoh
 
-from cdpr.protocol import Command, Keys, State
+from cdpr.protocol import PROTOCOL_VERSION, Command, Keys, State
 from cdpr.runtime.transport import zenoh_config
 from conftest import free_port
 from test_compose import (
@@ -251,7 +251,7 @@ def test_secure_session_ignores_an_intruders_commands(session_id: str, tmp_path:
                 k = State.decode(sample.payload.to_bytes()).step
                 for who, z in (("observer", mallory), ("sim", rogue_sim)):
                     z.put(keys.command, Command(k, k / 1000, (6500.0,) * 8, True, f"intruder-{who}").encode())
-                    z.put(keys.command, msgpack.packb({"v": 1, "step": k, "tensions": "garbage"}))
+                    z.put(keys.command, msgpack.packb({"v": PROTOCOL_VERSION, "step": k, "tensions": "garbage"}))
                     attacks[who] += 2
 
             mallory.declare_subscriber(keys.state, attack)

@@ -32,11 +32,11 @@ def bench(tmp_path_factory: pytest.TempPathFactory) -> tuple[dict, str]:
 
 def test_top_level_and_machine(bench: tuple[dict, str]) -> None:
     r, _ = bench
-    assert r["version"] == 1
+    assert r["version"] == 2
     assert r["quick"] is True
     assert r["scenario"] == "caroca_15kg"
-    for key in ("plan", "machine", "started", "elapsed_s", "monolithic", "distributed", "zenoh_rtt",
-                "realtime", "tda", "scaling", "targets"):
+    for key in ("plan", "machine", "started", "elapsed_s", "monolithic", "distributed", "loops", "deliveries",
+                "startup", "zenoh_rtt", "realtime", "tda", "scaling", "targets"):
         assert key in r, key
     m = r["machine"]
     assert isinstance(m["nproc"], int)
@@ -44,7 +44,7 @@ def test_top_level_and_machine(bench: tuple[dict, str]) -> None:
     assert isinstance(m["cpu_model"], str)
     assert len(m["loadavg"]) == 3
     assert len(m["loadavg_end"]) == 3
-    parts = ["monolithic", "distributed", "zenoh_rtt", "realtime", "tda", "scaling"]
+    parts = ["monolithic", "distributed", "startup", "zenoh_rtt", "realtime", "tda", "scaling"]
     assert list(m["loadavg_by_part"]) == parts
     assert all(isinstance(x, float) and x >= 0 for x in m["loadavg_by_part"].values())
     assert _positive(r["elapsed_s"])
@@ -68,6 +68,25 @@ def test_loop_figures(bench: tuple[dict, str]) -> None:
     assert len(dist["state_digest"]) == 64
     assert dist["cpu_us_per_step"] is None or _positive(dist["cpu_us_per_step"])
     assert all(_positive(v) for v in dist["cpu_us_per_step_by_process"].values())
+    loops = r["loops"]
+    assert loops["multi_process"] == dist
+    for name in ("multi_process_recording", "in_process"):
+        assert _positive(loops[name]["steps_per_s"]), name
+        assert loops[name]["steps"] == dist["steps"], name
+        assert loops[name]["state_digest"] == dist["state_digest"], name  # the same session, every way
+    assert loops["recording_cost"] == pytest.approx(
+        1 - loops["multi_process_recording"]["steps_per_s"] / dist["steps_per_s"])
+    d = r["deliveries"]
+    assert d["steps"] == QUICK.mono_steps
+    assert set(d["topics"]) >= {"tick", "state", "setpoints", "command", "telemetry"}
+    assert d["topics"]["state"]["messages_per_step"] == pytest.approx(1.0, abs=0.01)  # the loop's round trip
+    assert d["topics"]["command"]["messages_per_step"] == pytest.approx(1.0, abs=0.01)
+    assert d["deliveries_per_step"] == pytest.approx(sum(t["deliveries_per_step"] for t in d["topics"].values()))
+    s = r["startup"]
+    assert s["steps"] == 50
+    assert len(s["multi_process_runs_s"]) == len(s["in_process_runs_s"]) == QUICK.startup_repeats
+    assert _positive(s["multi_process_s"])
+    assert _positive(s["in_process_s"])
 
 
 def test_transport_and_realtime(bench: tuple[dict, str]) -> None:
@@ -121,7 +140,9 @@ def test_tda_and_scaling(bench: tuple[dict, str]) -> None:
 
 def test_table_is_printed(bench: tuple[dict, str]) -> None:
     _, stdout = bench
-    for text in ("monolithic loop", "distributed loop", "Zenoh round trip", "peers linked directly", "realtime",
+    for text in ("monolithic loop", "distributed loop", "in-process composition", "cost of recording",
+                 "messages delivered per step", "50-step session", "Zenoh round trip", "peers linked directly",
+                 "realtime",
                  "tension distribution", "scaling", "targets", "load as each part started"):
         assert text in stdout
 

@@ -1,55 +1,68 @@
-"""The clock's pure logic: when ticks may go out, pausing, resending, realtime deadlines, statistics."""
+"""The clock's pure logic: which steps may be granted, windows, pausing, resending, realtime deadlines,
+statistics."""
 
 from __future__ import annotations
 
 from cdpr_clock.core import ClockCore
 
 
-def drain(core: ClockCore, now: float) -> list[int]:
+def drain(core: ClockCore, now: float) -> list[tuple[int, int, bool]]:
     out = []
-    while (k := core.next_tick(now)) is not None:
-        core.issue(k, now)
-        out.append(k)
+    while (grant := core.next_grant(now)) is not None:
+        core.issue(grant[0], now, grant[1])
+        out.append(grant)
     return out
 
 
 def test_nothing_while_waiting_for_participants() -> None:
-    core = ClockCore(total_steps=5, dt=0.001)
+    core = ClockCore(total_steps=5, dt=0.001, lookahead=1)
     assert drain(core, 0.0) == []
     core.resume(0.0)
-    assert drain(core, 0.0) == [0]
+    assert drain(core, 0.0) == [(0, 0, True)]
 
 
-def test_lookahead_one_keeps_one_tick_ahead_of_the_sim() -> None:
+def test_lookahead_one_keeps_one_step_ahead_of_the_sim() -> None:
     core = ClockCore(total_steps=4, dt=0.001, lookahead=1)
     core.resume(0.0)
-    assert drain(core, 0.0) == [0]
+    assert drain(core, 0.0) == [(0, 0, True)]
     core.on_state(0, 0.0)  # state 0 (published on tick 0)
-    assert drain(core, 0.0) == [1]
+    assert drain(core, 0.0) == [(1, 1, True)]
     core.on_state(1, 0.0)
-    assert drain(core, 0.0) == [2]
-    core.on_state(2, 0.0)
-    assert drain(core, 0.0) == [3]
-    core.on_state(3, 0.0)
-    assert drain(core, 0.0) == []  # no tick 4 of a 4-step session
+    assert drain(core, 0.0) == [(2, 2, True)]
+    core.on_state(3, 0.0)  # a block may report several steps at once: the grant catches up
+    assert drain(core, 0.0) == [(3, 3, False)]  # the last step, below the lookahead edge
     assert not core.finished
     core.on_state(4, 0.0)
+    assert drain(core, 0.0) == []  # no tick 4 of a 4-step session
     assert core.finished
 
 
 def test_lookahead_zero_is_a_strict_handshake() -> None:
     core = ClockCore(total_steps=3, dt=0.001, lookahead=0)
     core.resume(0.0)
-    assert drain(core, 0.0) == [0]
+    assert drain(core, 0.0) == [(0, 0, True)]  # flush: the sim reports as soon as step 0 is done
     assert drain(core, 0.0) == []
     core.on_state(0, 0.0)
     assert drain(core, 0.0) == []  # step 0 is not complete until state 1
     core.on_state(1, 0.0)
-    assert drain(core, 0.0) == [1]
+    assert drain(core, 0.0) == [(1, 1, True)]
 
 
-def test_pause_stops_ticks_and_resume_repeats_the_unfinished_step() -> None:
-    core = ClockCore(total_steps=10, dt=0.001)
+def test_fast_mode_grants_windows_ahead_of_the_reports() -> None:
+    core = ClockCore(total_steps=1000, dt=0.001, lookahead=100)
+    core.resume(0.0)
+    assert drain(core, 0.0) == [(0, 99, True)]  # one message for the first 100 steps
+    core.on_state(50, 0.0)  # a telemetry block: the sim is at step 50
+    assert drain(core, 0.0) == [(100, 150, True)]
+    core.on_state(51, 0.0)
+    assert drain(core, 0.0) == [(151, 151, True)]
+    core.on_state(950, 0.0)
+    assert drain(core, 0.0) == [(152, 999, False)]  # never past the last step
+    assert drain(core, 0.0) == []
+
+
+def test_pause_stops_ticks_and_resume_repeats_the_unfinished_steps() -> None:
+    core = ClockCore(total_steps=10, dt=0.001, lookahead=1)
     core.resume(0.0)
     drain(core, 0.0)
     core.on_state(0, 0.0)
@@ -57,26 +70,37 @@ def test_pause_stops_ticks_and_resume_repeats_the_unfinished_step() -> None:
     core.on_state(1, 0.0)
     core.pause(0.0)
     assert drain(core, 0.0) == []
-    assert core.resume(2.0) == [1]  # tick 1 was issued, step 1 is not complete
+    assert core.resume(2.0) == (1, 1)  # step 1 was granted and is not complete
     assert core.paused_time == 2.0
-    assert drain(core, 2.0) == [2]
+    assert drain(core, 2.0) == [(2, 2, True)]
 
 
-def test_realtime_waits_for_deadlines_and_counts_late_ticks() -> None:
-    core = ClockCore(total_steps=10, dt=0.001, realtime=True)
+def test_realtime_grants_one_step_at_its_deadline_and_counts_late_ticks() -> None:
+    core = ClockCore(total_steps=10, dt=0.001, realtime=True, lookahead=1)
     core.resume(0.0)
-    assert drain(core, 100.0) == [0]  # tick 0 defines t0 = 100
+    assert drain(core, 100.0) == [(0, 0, True)]  # tick 0 defines t0 = 100
     core.on_state(0, 100.0)
-    assert core.next_tick(100.0005) is None
+    assert core.next_grant(100.0005) is None
     assert abs(core.wait_time(100.0005) - 0.0005) < 1e-12
-    assert drain(core, 100.001) == [1]
+    assert drain(core, 100.001) == [(1, 1, True)]
     core.on_state(1, 100.001)
-    assert drain(core, 100.0045) == [2]  # 2.5 ms late
+    assert drain(core, 100.0045) == [(2, 2, True)]  # 2.5 ms late
     stats = core.stats(100.005)
     assert core.late_ticks == 1
     assert stats["late_ticks"] == 1
     assert abs(stats["lateness_max_ms"] - 2.5) < 1e-6
     assert abs(stats["on_time_fraction"] - 2 / 3) < 1e-9
+
+
+def test_realtime_with_a_lookahead_asks_for_a_report_only_at_the_edge() -> None:
+    core = ClockCore(total_steps=10, dt=0.001, realtime=True, lookahead=3)
+    core.resume(0.0)
+    grants = [drain(core, 100.0 + 0.001 * k)[0] for k in range(3)]
+    assert grants == [(0, 0, False), (1, 1, False), (2, 2, True)]  # state 2 − 3 < 0: the report is due
+    assert drain(core, 100.004) == []  # nothing more until the sim reports
+    core.on_state(2, 100.004)
+    assert drain(core, 100.004) == [(3, 3, False), (4, 4, False)]  # both due by now
+    assert drain(core, 100.005) == [(5, 5, True)]
 
 
 def test_stats_rate_and_rtf() -> None:

@@ -18,7 +18,7 @@ from cdpr.mechanics.control import FeedbackLaw, Gains, controlled_rows, feedback
 from cdpr.mechanics.kinematics import WrenchMatrix, inverse_kinematics
 from cdpr.mechanics.rotation import matrix_to_quat, quat_to_matrix
 from cdpr.mechanics.tda import make_tda
-from cdpr.protocol import Command, ProtocolError, State
+from cdpr.protocol import PROTOCOL_VERSION, Command, ProtocolError, State
 from cdpr.runtime.service import Node, _Dispatcher
 from cdpr.runtime.transport import Event, Inbox, StopFlag, zenoh_config
 from cdpr_sim.core import clamp_tensions
@@ -101,7 +101,7 @@ def test_clamp_tensions_fast_path_matches_the_formula() -> None:
 
 def test_vector_fast_path_keeps_the_checks() -> None:
     def command(tensions: object) -> bytes:
-        return msgpack.packb({"v": 1, "step": 1, "t": 0.001, "tensions": tensions})
+        return msgpack.packb({"v": PROTOCOL_VERSION, "step": 1, "t": 0.001, "tensions": tensions})
 
     assert Command.decode(command([1.5, 2.5])).tensions == (1.5, 2.5)
     assert Command.decode(command([1, 2.5])).tensions == (1.0, 2.5)  # integers are numbers too

@@ -12,12 +12,14 @@ import sys
 import threading
 import time
 from pathlib import Path
+from typing import Any
 
 import msgpack
 import pytest
 import zenoh
 
-from cdpr.protocol import Command, Keys, Status
+from cdpr import recording
+from cdpr.protocol import PROTOCOL_VERSION, Command, Keys, Status
 from cdpr.runtime.transport import zenoh_config
 from cdpr.tools.bench import rt_priority_allowed
 from conftest import CDPR, cdpr, free_port, last_json_line, processes_mentioning, wait_no_processes
@@ -81,7 +83,7 @@ def test_remote_controller_joins_an_up_session(session_id: str) -> None:
 def _garbage(m: int) -> list[bytes]:
     """Bad commands of every kind the sim must survive."""
     ok = Command(3, 0.003, tuple([10.0] * m)).encode()
-    pk = lambda d: msgpack.packb({"v": 1, **d})  # noqa: E731
+    pk = lambda d: msgpack.packb({"v": PROTOCOL_VERSION, **d})  # noqa: E731
     return [
         b"",
         b"\xc1\xff\x00 not msgpack",
@@ -187,8 +189,9 @@ def _roles_and_policies(session: str) -> dict[str, int]:
             policy = os.sched_getscheduler(pid) & ~os.SCHED_RESET_ON_FORK
         except OSError:
             continue
-        if b"cdpr" in argv[:-1]:
-            out[argv[argv.index(b"cdpr") + 1].decode()] = policy
+        for module in (b"cdpr", b"cdpr.runtime"):  # `python -m cdpr run`, `python -m cdpr.runtime sim`
+            if module in argv[:-1]:
+                out[argv[argv.index(module) + 1].decode()] = policy
     return out
 
 
@@ -224,3 +227,44 @@ def test_rt_priority_not_permitted_is_one_line_and_exit_2() -> None:
     assert len(lines) == 1, proc.stderr
     assert "--rt-priority" in lines[0], proc.stderr
     assert "CAP_SYS_NICE" in lines[0], proc.stderr
+
+
+@pytest.mark.slow
+def test_in_process_composition_gives_the_multi_process_state_stream(session_id: str, tmp_path: Path) -> None:
+    """`cdpr run --in-process`: the same nodes in one process, the same messages, the same state digest;
+    its recording (the recorder composed too) holds every state."""
+    multi = cdpr("run", "caroca_15kg_winch", "--duration", "0.5", "--session", f"{session_id}m", "--quiet",
+                 timeout=180, check=True)
+    rrd = tmp_path / "composed.rrd"
+    composed = cdpr("run", "caroca_15kg_winch", "--duration", "0.5", "--session", f"{session_id}c", "--quiet",
+                    "--in-process", "--rrd", str(rrd), timeout=180, check=True)
+    a, b = last_json_line(multi.stdout), last_json_line(composed.stdout)
+    assert a["exit_ok"] is True
+    assert b["exit_ok"] is True
+    assert (a["in_process"], b["in_process"]) == (False, True)
+    assert b["exit_codes"] == {"in-process": 0}
+    assert a["steps"] == b["steps"] == 500
+    assert a["state_digest"] == b["state_digest"]
+    assert a["rms_position_error"] == b["rms_position_error"]
+    steps = sorted({row[0] for row in _rrd_rows(rrd, recording.ACTUAL_POSITION)})
+    assert steps == list(range(501))
+
+
+def test_in_process_refuses_remote_participants() -> None:
+    from cdpr.config.scenario import load_scenario
+    from cdpr.errors import InputError
+    from cdpr.tools.launch import run_session
+
+    with pytest.raises(InputError, match=r"^--in-process: every node runs in this process"):
+        run_session(load_scenario("caroca_15kg"), without=("controller",), in_process=True)
+
+
+def _rrd_rows(path: Path, entity: str) -> list[tuple[int, Any]]:
+    from rerun.chunk import RrdReader
+
+    out = []
+    for chunk in RrdReader(str(path)).stream().to_chunks():
+        if chunk.entity_path == f"/{entity}" and not chunk.is_static:
+            rb = chunk.to_record_batch()
+            out += list(zip(rb.column("step").to_pylist(), rb.column("Scalars:scalars").to_pylist(), strict=True))
+    return out

@@ -10,7 +10,20 @@ import msgpack
 import pytest
 import yaml
 
-from cdpr.protocol import Command, Keys, ProtocolError, Setpoint, State, Status, Tick, wiring
+from cdpr.protocol import (
+    PROTOCOL_VERSION,
+    Command,
+    Keys,
+    ProtocolError,
+    Sensors,
+    Setpoint,
+    Setpoints,
+    State,
+    Status,
+    Telemetry,
+    Tick,
+    wiring,
+)
 from cdpr.protocol.wiring import TOPICS, WIRING
 from cdpr.runtime.client import _ControllerNode
 from cdpr.runtime.registry import node_class, node_names
@@ -50,7 +63,7 @@ def test_every_registered_node_is_wired_as_the_table_says() -> None:
 
 def test_a_node_off_the_table_is_refused() -> None:
     with pytest.raises(ValueError, match=r"publishes \['command', 'state'\], the wiring table lists \['command'\]"):
-        wiring.check_node("controller", ("state", "setpoint"), ("command", "state"))
+        wiring.check_node("controller", ("state", "setpoints"), ("command", "state"))
     with pytest.raises(ValueError, match="subscribes"):
         wiring.check_node("sim", ("tick",), ("state", "sensors"))
     with pytest.raises(ValueError, match="not in the wiring table"):
@@ -72,9 +85,12 @@ def test_compose_runs_the_nodes_of_the_table() -> None:
     "msg",
     [
         Tick(3, 0.003),
+        Tick(3, 0.003, 99, False, True),
+        Tick(7, 0.007, 12, True, True),
         State(5, 0.005, (1, 2, 3, 0, 0, 0, 1), (0.1,) * 6, (4.0,) * 8, (10.0,) * 8, 2),
         Setpoint(5, 0.005, (1, 2, 3, 0, 0, 0, 1), (0.0,) * 6, (0.5,) * 6),
         Command(5, 0.005, (1.0,) * 8, False, "infeasible"),
+        Command(5, 0.005, (), True, "optimal", (2.0,) * 8, 3.5e-5),
         Status("running", 7, 0.007, 100, ("controller",), "why", {"rate": 1.5}),
     ],
 )
@@ -84,12 +100,59 @@ def test_round_trip(msg: object) -> None:
     assert back == cls.decode(back.encode())
     for field in ("step", "t"):
         assert getattr(back, field) == getattr(msg, field)
+    assert back == msg
     raw = msgpack.unpackb(msg.encode())  # type: ignore[attr-defined]
-    assert raw["v"] == 1
+    assert raw["v"] == PROTOCOL_VERSION == 2
+
+
+def _states(n: int, first: int = 0) -> tuple[State, ...]:
+    return tuple(State(k, k / 1000, (1, 2, 3, 0, 0, 0, 1), (0.1 * k,) * 6, (4.0,) * 8, (10.0 + k,) * 8, k // 3)
+                 for k in range(first, first + n))
+
+
+def test_blocks_round_trip() -> None:
+    sps = Setpoints(tuple(Setpoint(10 + i, 0.01 + i / 1000, (1, 2, 3 + i, 0, 0, 0, 1), (0.1,) * 6, (0.2,) * 6)
+                          for i in range(50)))
+    assert Setpoints.decode(sps.encode()) == sps
+    commands = tuple(Command(k, k / 1000, (float(k),) * 8, k != 2, "optimal" if k != 2 else "infeasible",
+                             None, None if k == 1 else 1e-4 * k) for k in range(4))
+    sensors = tuple(Sensors(k, k / 1000, (4.0,) * 8, (9.0,) * 8, (0.0, 0.0, 9.81), (0.0,) * 3) for k in range(5))
+    block = Telemetry(_states(5), commands, (1e-4, 2e-4, 3e-4, 4e-4), sensors)
+    assert Telemetry.decode(block.encode(), cables=8) == block
+    assert Telemetry.decode(Telemetry(_states(1, 7)).encode()).states == _states(1, 7)  # a heartbeat
+    # a state stream re-encoded from telemetry is the stream the sim published (the run's digest)
+    assert [s.encode() for s in Telemetry.decode(block.encode()).states] == [s.encode() for s in _states(5)]
+
+
+@pytest.mark.parametrize(
+    ("change", "field"),
+    [
+        (lambda m: m.update(pose=m["pose"][:-1]), "pose"),
+        (lambda m: m.update(clamped=[0] * 2), "clamped"),
+        (lambda m: m["command"].update(kind="volts"), "command.kind"),
+        (lambda m: m["command"].update(status=["ok"]), "command.status"),
+        (lambda m: m["command"].update(lag=[math.nan] * 3), "lag[0]"),
+        (lambda m: m.update(step=[0, 1, -2]), "step"),
+    ],
+)
+def test_bad_telemetry_names_the_field(change: object, field: str) -> None:
+    commands = tuple(Command(k, k / 1000, (1.0,) * 8) for k in range(3))
+    raw = msgpack.unpackb(Telemetry(_states(3), commands, (0.0,) * 3).encode())
+    change(raw)  # type: ignore[operator]
+    with pytest.raises(ProtocolError) as err:
+        Telemetry.decode(msgpack.packb(raw), cables=8)
+    assert str(err.value).startswith(f"{field}:"), str(err.value)
+
+
+def test_a_tick_never_grants_backwards() -> None:
+    raw = msgpack.unpackb(Tick(5, 0.005, 9).encode())
+    raw["until"] = 4
+    with pytest.raises(ProtocolError, match=r"^until: must be >= step"):
+        Tick.decode(msgpack.packb(raw))
 
 
 def _cmd(**fields: object) -> bytes:
-    base: dict[str, object] = {"v": 1, "step": 1, "t": 0.001, "tensions": [1.0] * 8}
+    base: dict[str, object] = {"v": PROTOCOL_VERSION, "step": 1, "t": 0.001, "tensions": [1.0] * 8}
     base.update(fields)
     return msgpack.packb({k: v for k, v in base.items() if v is not None})
 
@@ -99,7 +162,7 @@ def _cmd(**fields: object) -> bytes:
     [
         (b"\xc1", "payload"),
         (msgpack.packb([1, 2]), "payload"),
-        (_cmd(v=2), "v"),
+        (_cmd(v=1), "v"),  # a protocol version 1 peer: refused, naming the version
         (_cmd(v=None), "v"),
         (_cmd(step=None), "step"),
         (_cmd(step=-1), "step"),

@@ -101,7 +101,7 @@ def test_core_errors_follow_the_run_metrics_definitions() -> None:
     for msg in stream:
         if isinstance(msg, State):
             new = core.add_state(msg)
-            metrics.add_state(msg, msg.encode())
+            metrics.add_state(msg)
         elif isinstance(msg, Setpoint):
             new = core.add_setpoint(msg)
             metrics.add_setpoint(msg)
@@ -350,7 +350,7 @@ def test_the_recording_holds_the_whole_state_stream(recorded: tuple[dict[str, An
             tuple(tensions[k]),
             int(clamped[k, 0]),
         )
-        metrics.add_state(st, st.encode())
+        metrics.add_state(st)
     assert metrics.digest() == summary["state_digest"]
     # the recorder's own error series ends with the run's final error (the last tick's step)
     k, _, err = _scalars(rrd, recording.POSITION_ERROR_NORM)
@@ -564,3 +564,50 @@ def test_a_missing_or_bad_file_is_one_line_and_exit_2(command: str, tmp_path: Pa
         assert proc.returncode == 2
         assert proc.stderr.startswith(f"cdpr: error: {bad}: ")
         assert len(proc.stderr.strip().splitlines()) == 1
+
+
+@pytest.mark.slow
+def test_every_stream_for_every_step_with_a_competing_process(session_id: str, tmp_path: Path) -> None:
+    """The winch scenario (length commands, sensors) recorded while another process keeps a core busy:
+    pose, twist, lengths, tensions, setpoints, errors, commanded lengths, TDA status and solve time,
+    loop lag and every sensor, each for every step; the clock's statistics too."""
+    rrd = tmp_path / "winch.rrd"
+    burner = subprocess.Popen([sys.executable, "-c", "import time\nt = time.monotonic() + 120\n"
+                               "while time.monotonic() < t: pass"])
+    try:
+        proc = cdpr("run", "caroca_15kg_winch", "--duration", "0.4", "--session", session_id, "--rrd", str(rrd),
+                    "--quiet", timeout=180)
+    finally:
+        burner.kill()
+        burner.wait()
+    assert proc.returncode == 0, proc.stderr[-3000:]
+    summary = last_json_line(proc.stdout)
+    n = summary["steps"]
+    assert n == 400
+    states, steps = list(range(n + 1)), list(range(n))
+    for entity, want in [
+        (recording.ACTUAL_POSITION, states), (recording.ACTUAL_QUATERNION, states), (recording.ACTUAL_TWIST, states),
+        (recording.CABLE_LENGTHS, states), (recording.tension_series(0), states[1:]),
+        (recording.DESIRED_POSITION, steps), (recording.POSITION_ERROR_NORM, steps),
+        (recording.ORIENTATION_ERROR_NORM, steps), (recording.COMMAND_LENGTHS, steps),
+        (recording.COMMAND_FEASIBLE, steps), (recording.COMMAND_SOLVE_TIME, steps), (recording.LOOP_LAG, steps),
+        (recording.SENSOR_ENCODERS, states), (recording.SENSOR_LOAD_CELLS, states),
+        (recording.SENSOR_ACCEL, states), (recording.SENSOR_GYRO, states),
+    ]:
+        got, _, values = _scalars(rrd, entity)
+        assert got.tolist() == want, entity
+        assert np.all(np.isfinite(values)), entity
+    _, _, solve = _scalars(rrd, recording.COMMAND_SOLVE_TIME)
+    assert 0.0 < float(np.median(solve)) < 0.1  # seconds, as the controller measured them
+    _, _, lengths = _scalars(rrd, recording.COMMAND_LENGTHS)
+    assert lengths.shape == (n, 8)
+    assert len(_scalars(rrd, recording.clock_series("rate"))[0]) >= 1
+
+
+@pytest.mark.slow
+def test_commanded_tensions_are_recorded(recorded: tuple[dict[str, Any], Path]) -> None:
+    _, rrd = recorded
+    got, _, values = _scalars(rrd, recording.COMMAND_TENSIONS)
+    assert got.tolist() == list(range(STEPS))
+    _, _, applied = _scalars(rrd, recording.tension_series(3))
+    assert np.allclose(values[:, 3], applied[:, 0])  # tensions in the loop: applied as commanded (none clamped)

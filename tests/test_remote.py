@@ -20,7 +20,7 @@ import zenoh
 from cdpr.config.scenario import load_scenario
 from cdpr.mechanics.kinematics import inverse_kinematics
 from cdpr.mechanics.rotation import rpy_to_matrix
-from cdpr.protocol import Command, Keys, ProtocolError, Setpoint, State, Status
+from cdpr.protocol import PROTOCOL_VERSION, Command, Keys, ProtocolError, Setpoint, Setpoints, State, Status
 from cdpr.protocol.session import SessionInfo, encode_session_info, robot_from_summary, session_info
 from cdpr.runtime.client import (
     FunctionController,
@@ -66,7 +66,7 @@ def test_session_info_rebuilds_the_scenario_robot() -> None:
 
 def test_session_info_of_a_3dof_point_mass_robot() -> None:
     sc = load_scenario("caroca_1kg")
-    msg = {"v": 1, **session_info(sc)}
+    msg = {"v": PROTOCOL_VERSION, **session_info(sc)}
     msg["robot"] = load_scenario("caroca_1kg").robot.replace(
         mode="point_mass", platform_points=np.zeros((8, 3))).summary()
     info = SessionInfo.from_payload(msgpack.packb(msg))
@@ -83,7 +83,7 @@ def test_session_info_of_a_3dof_point_mass_robot() -> None:
     (lambda m: m["robot"].update(mode="hexapod"), "robot.mode"),
 ])
 def test_bad_session_info_names_the_field(change: Any, field: str) -> None:
-    msg = {"v": 1, **session_info(load_scenario("caroca_15kg"))}
+    msg = {"v": PROTOCOL_VERSION, **session_info(load_scenario("caroca_15kg"))}
     change(msg)
     with pytest.raises(ProtocolError, match=f"session/info: {field.split(':')[0]}"):
         SessionInfo.from_payload(msgpack.packb(msg))
@@ -138,9 +138,11 @@ class Harness:
         self.z.put(self.keys.state, State(k, k / 1000, (0.9, 0.9, 0.2, 0, 0, 0, 1), (0.0,) * 6,
                                           (4.0,) * 8, (0.0,) * 8).encode())
 
-    def setpoint(self, k: int) -> None:
-        self.z.put(self.keys.setpoint, Setpoint(k, k / 1000, (0.9, 0.9, 0.2 + k, 0, 0, 0, 1), (0.0,) * 6,
-                                                (0.0,) * 6).encode())
+    def setpoint(self, k: int, n: int = 1) -> None:
+        """A block of setpoints k … k + n − 1, as the trajectory publishes them."""
+        self.z.put(self.keys.setpoints, Setpoints(tuple(
+            Setpoint(j, j / 1000, (0.9, 0.9, 0.2 + j, 0, 0, 0, 1), (0.0,) * 6, (0.0,) * 6) for j in range(k, k + n)
+        )).encode())
 
     def status(self, state: str) -> None:
         self.z.put(self.keys.status, Status(state, 3, 0.003, 4, reason="test").encode())
@@ -199,6 +201,10 @@ def test_sdk_answers_each_state_once_its_setpoint_is_there(session_id: str) -> N
         c = h.next_command()
         assert c.step == 2
         assert c.tensions[0] == pytest.approx(2.0 + 2.2)
+        h.setpoint(3, n=3)  # a block ahead of the states, as the trajectory sends them
+        for k in (3, 4, 5):
+            h.state(k)
+            assert h.next_command().step == k
         h.status("finished")
         t.join(WAIT)
         assert not t.is_alive()
@@ -209,8 +215,8 @@ def test_sdk_answers_each_state_once_its_setpoint_is_there(session_id: str) -> N
     assert report.exit_code == 0
     assert report.status is not None
     assert report.status.state == "finished"
-    assert (report.answered, report.last_step) == (4, 2)
-    assert [(k, j) for k, j, _ in calls] == [(0, 0), (1, 1), (1, 1), (2, 2)]
+    assert (report.answered, report.last_step) == (7, 5)
+    assert [(k, j) for k, j, _ in calls] == [(0, 0), (1, 1), (1, 1), (2, 2), (3, 3), (4, 4), (5, 5)]
     assert {mass for _, _, mass in calls} == {15.0}
     assert report.info is not None
     assert report.info.scenario == "caroca_15kg"

@@ -1,11 +1,13 @@
-"""The clock's logic, free of I/O: which tick may go out now, and the statistics.
+"""The clock's logic, free of I/O: which steps may be granted now, and the statistics.
 
-Step k is *complete* when the sim has published its state k+1. Tick k (k > 0; tick 0 starts the run) may be
-issued once the sim has reached step k − ``lookahead`` (state k − lookahead received), so with the default lookahead
-of 1 the trajectory prepares setpoint k+1 while the controller and the sim work on step k; the sim still never
-integrates step k before tick k. In ``realtime`` mode tick k also waits for its wall-clock deadline
-t₀ + k·dt, and a tick issued more than dt after its deadline is counted late. While paused, nothing is
-issued; on resume the deadlines restart from the resume time (no burst to catch up).
+Step k is *complete* when the sim has published its state k+1; the clock hears of it through the sim's
+telemetry blocks. Step k (k > 0; tick 0 starts the run) may be granted once the sim has reached step
+k − ``lookahead``. In ``fast`` mode one tick grants every step up to that limit (a window: one message
+for many steps); in ``realtime`` mode tick k grants step k alone, at its wall-clock deadline t₀ + k·dt,
+and a tick issued more than dt after its deadline is counted late. A tick that reaches the limit asks
+the sim for a report once it is done (``flush``), so the clock never waits for a block that is not due.
+The sim never integrates step k before tick k. While paused, nothing is issued; on resume the deadlines
+restart from the resume time (no burst to catch up).
 """
 
 from __future__ import annotations
@@ -21,7 +23,7 @@ class ClockCore:
     total_steps: int
     dt: float
     realtime: bool = False
-    lookahead: int = 1
+    lookahead: int = 100
     issued: int = -1  # highest tick issued
     reached: int = -1  # highest step whose state has been received
     paused: bool = True  # until every expected participant is there
@@ -46,16 +48,21 @@ class ClockCore:
     def deadline(self, k: int) -> float:
         return self.base + (k - self.base_step) * self.dt
 
-    def next_tick(self, now: float) -> int | None:
-        """The tick to issue now, if any (call repeatedly until None)."""
+    def next_grant(self, now: float) -> tuple[int, int, bool] | None:
+        """``(first, until, flush)`` of the tick to issue now, if any (call repeatedly until None)."""
         k = self.issued + 1
         if self.paused or k >= self.total_steps or (k > 0 and self.reached < k - self.lookahead):
             return None
-        if self.realtime and self.started_at is not None and now < self.deadline(k):
-            return None
-        return k
+        if self.realtime:
+            if self.started_at is not None and now < self.deadline(k):
+                return None
+            until = k
+        else:
+            until = max(k, min(self.total_steps - 1, self.reached + self.lookahead))
+        return k, until, until >= self.reached + self.lookahead
 
-    def issue(self, k: int, now: float) -> None:
+    def issue(self, k: int, now: float, until: int | None = None) -> None:
+        """Record the grant of steps ``k`` … ``until`` (default: ``k``) at ``now``."""
         if self.started_at is None:
             self.started_at = self.base = now
             self.base_step = k
@@ -68,7 +75,7 @@ class ClockCore:
             if late * 1e3 <= self.dt * 1e3:  # (in ms, as stats() reports it)
                 self._on_time += 1
             self._latest = max(self._latest, late)
-        self.issued = k
+        self.issued = k if until is None else until
 
     def on_state(self, k: int, now: float) -> bool:
         """Record state k; True if it is news (progress)."""
@@ -92,10 +99,10 @@ class ClockCore:
             self.paused = True
             self._paused_since = now
 
-    def resume(self, now: float) -> list[int]:
-        """Leave the pause; returns the ticks to issue again (steps begun but not complete)."""
+    def resume(self, now: float) -> tuple[int, int] | None:
+        """Leave the pause; returns the grant to issue again (steps begun but not complete)."""
         if not self.paused:
-            return []
+            return None
         self.paused = False
         if self._paused_since is not None:
             self.paused_time += now - self._paused_since
@@ -103,11 +110,12 @@ class ClockCore:
         self.last_progress = now
         if self.started_at is not None:
             self.base, self.base_step = now, self.issued + 1
-        return self.pending_ticks()
+        return self.pending()
 
-    def pending_ticks(self) -> list[int]:
-        """Issued ticks whose step is not complete yet: what a resend repeats."""
-        return list(range(max(self.reached, 0), self.issued + 1))
+    def pending(self) -> tuple[int, int] | None:
+        """The granted steps not complete yet, ``(first, last)``: what a resend repeats (None: nothing)."""
+        first = max(self.reached, 0)
+        return (first, self.issued) if self.issued >= first else None
 
     def stats(self, now: float, exact: bool = True) -> dict[str, float | int]:
         """The run's statistics at ``now``. In realtime mode, with ``exact=False`` (the once-a-second

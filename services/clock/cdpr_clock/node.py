@@ -17,7 +17,7 @@ import zenoh
 
 from cdpr.config.scenario import Scenario
 from cdpr.errors import InputError
-from cdpr.protocol import SERVICES, Keys, ProtocolError, ServiceStats, State, Status, Tick
+from cdpr.protocol import SERVICES, Keys, ProtocolError, ServiceStats, Status, Telemetry, Tick
 from cdpr.protocol.session import encode_session_info
 from cdpr.runtime.service import Node
 from cdpr.runtime.transport import Event, Inbox, RateLimitedLog, log
@@ -37,13 +37,14 @@ class ClockNode(Node):
         keys: Keys,
         expected: Sequence[str] = ("sim", "trajectory", "controller"),
         realtime: bool = False,
-        lookahead: int = 1,
+        lookahead: int = 100,
         resend_after: float = 1.0,
         status_period: float = 1.0,
         join_timeout: float = 0.0,
     ) -> None:
         super().__init__(keys)
         self.scenario = scenario
+        self.m = scenario.robot.m
         self.core = ClockCore(scenario.total_steps, scenario.dt, realtime=realtime, lookahead=lookahead)
         self.expected = tuple(expected)
         self.present: set[str] = set()
@@ -68,8 +69,9 @@ class ClockNode(Node):
         g.add_argument("--mode", choices=("fast", "realtime"), default="fast", help="(default: %(default)s)")
         g.add_argument("--expect", default="sim,trajectory,controller",
                        help="comma-separated participants to wait for (default: %(default)s)")
-        g.add_argument("--lookahead", type=int, choices=range(9), default=1, metavar="0-8",
-                       help="ticks issued ahead of the sim (0: strict one-step handshake; default: %(default)s)")
+        g.add_argument("--lookahead", type=int, default=100, metavar="STEPS",
+                       help="steps granted ahead of the sim's last reported state (0: a strict one-step "
+                            "handshake, with a report every step; default: %(default)s)")
         g.add_argument("--resend-after", type=float, default=1.0, metavar="S",
                        help="seconds without progress before the pending ticks are repeated (default: %(default)s)")
         g.add_argument("--join-timeout", type=float, default=0.0, metavar="S",
@@ -82,6 +84,8 @@ class ClockNode(Node):
         unknown = [n for n in names if n not in SERVICES or n == "clock"]
         if unknown:
             raise InputError(f"--expect: unknown participant(s) {', '.join(unknown)}")
+        if not 0 <= args.lookahead <= 100_000:
+            raise InputError(f"--lookahead: must be between 0 and 100000 steps, got {args.lookahead}")
         if not args.resend_after >= 0.01:
             raise InputError(f"--resend-after: must be at least 0.01 s, got {args.resend_after}")
         if not args.join_timeout >= 0:
@@ -93,7 +97,8 @@ class ClockNode(Node):
     def missing(self) -> tuple[str, ...]:
         return tuple(s for s in self.expected if s not in self.present)
 
-    subscribes = ("state", "stats")
+    subscribes = ("telemetry", "stats")
+    scenario_checks = ("workspace",)  # the session's authority: a trajectory out of the workspace is refused
     publishes = ("tick", "status", "info")
 
     def declare(self, session: zenoh.Session, inbox: Inbox) -> list[Any]:
@@ -109,20 +114,23 @@ class ClockNode(Node):
     # -- events -----------------------------------------------------------------------------------
     def handle(self, event: Event) -> None:
         now = time.monotonic()
-        if event.kind == "state":
+        if event.kind == "telemetry":
             try:
-                state = State.decode(event.payload)
+                block = Telemetry.decode(event.payload, self.m)
             except ProtocolError as exc:
-                self.count("bad_states")
-                self.warn("bad_state", f"dropped a bad sim/state: {exc}")
+                self.count("bad_telemetry")
+                self.warn("bad_telemetry", f"dropped a bad sim/telemetry block: {exc}")
                 return
-            if state.step < self.core.reached:
+            if not block.states:
+                return
+            step = block.states[-1].step
+            if step < self.core.reached:
                 # Only a sim that started afresh goes back in time (a reconnecting sim, e.g. after a
                 # router restart, carries on from its step): the platform's state is lost.
                 self.abort(f"the sim restarted: its state went back from step {self.core.reached} to "
-                           f"step {state.step}; the platform's state is lost", now)
+                           f"step {step}; the platform's state is lost", now)
                 return
-            self.core.on_state(state.step, now)
+            self.core.on_state(step, now)
             if self.core.finished and self.finished_at is None:
                 self.finish(now)
             return
@@ -150,9 +158,9 @@ class ClockNode(Node):
                 self.set_state("paused", f"waiting for {', '.join(self.missing)}", now)
         elif self.core.paused:
             resend = self.core.resume(now)
-            if self.core.started_at is not None and resend:
+            if self.core.started_at is not None and resend is not None:
                 log(self.name, f"all participants back; resuming at step {self.core.reached}")
-                self.send_ticks(resend, now, again=True)
+                self.send_tick(resend[0], resend[1], now, resend=True)
             self.set_state("running", "", now)
 
     # -- ticking ----------------------------------------------------------------------------------
@@ -169,29 +177,31 @@ class ClockNode(Node):
             if not (set(self.expected) & self.present) or now - self.finished_at > LINGER:
                 self.done = True
             return
-        while (k := self.core.next_tick(time.monotonic())) is not None:
-            self.send_ticks([k], time.monotonic())
+        while (grant := self.core.next_grant(time.monotonic())) is not None:
+            first, until, flush = grant
+            self.send_tick(first, until, time.monotonic(), flush=flush)
         if (
             not self.core.paused
             and self.core.started_at is not None
             and now - self.core.last_progress > self.resend_after
         ):
-            pending = self.core.pending_ticks()
-            self.warn("stall", f"no progress for {self.resend_after:g} s at step {self.core.reached}; "
-                      f"repeating tick(s) {pending}")
-            self.send_ticks(pending, now, again=True)
+            pending = self.core.pending()
+            if pending is not None:
+                self.warn("stall", f"no progress for {self.resend_after:g} s at step {self.core.reached}; "
+                          f"repeating the grant of steps {pending[0]}-{pending[1]}")
+                self.send_tick(pending[0], pending[1], now, resend=True)
             self.core.last_progress = now
         if now - self.last_status >= self.status_period:
             self.publish_status(now)
 
-    def send_ticks(self, steps: list[int], now: float, again: bool = False) -> None:
+    def send_tick(self, first: int, until: int, now: float, flush: bool = False, resend: bool = False) -> None:
+        """Grant steps ``first`` … ``until`` (``resend``: again, asking for the current state)."""
         assert self._tick is not None
-        for k in steps:
-            if again:
-                self.core.resends += 1
-            else:
-                self.core.issue(k, now)
-            self._tick.put(Tick(k, k * self.core.dt).encode())
+        if resend:
+            self.core.resends += 1
+        else:
+            self.core.issue(first, now, until)
+        self._tick.put(Tick(first, first * self.core.dt, until, resend, flush or resend).encode())
 
     # -- status -----------------------------------------------------------------------------------
     def set_state(self, state: str, reason: str, now: float) -> None:

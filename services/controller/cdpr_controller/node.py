@@ -7,13 +7,15 @@ resend) is answered again.
 
 from __future__ import annotations
 
+import time
 from typing import Any
 
 import zenoh
 
 from cdpr.config.scenario import Scenario
 from cdpr.mechanics.rotation import matrix_to_quat
-from cdpr.protocol import Command, Keys, ProtocolError, Setpoint, State
+from cdpr.protocol import Command, Keys, ProtocolError, Setpoint, Setpoints, State
+from cdpr.protocol.pairing import Pairing
 from cdpr.runtime.service import Node
 from cdpr.runtime.transport import Event, Inbox, RateLimitedLog, log
 from cdpr_controller.core import ControllerCore
@@ -37,14 +39,14 @@ class ControllerNode(Node):
         self.core.warm_up(State(0, 0.0, pose, (0.0,) * 6, (1.0,) * m, (0.0,) * m),
                           Setpoint(0, 0.0, pose, (0.0,) * 6, (0.0,) * 6))
         self.m = scenario.robot.m
-        self.states: dict[int, State] = {}
-        self.setpoints: dict[int, Setpoint] = {}
+        self.pairing = Pairing()
         self.answered = -1
         self.infeasible = 0
         self.warn = RateLimitedLog(self.name)
         self._pub: zenoh.Publisher | None = None
 
-    subscribes = ("state", "setpoint")
+    subscribes = ("state", "setpoints")
+    scenario_checks = ("tda",)
     publishes = ("command",)
 
     def declare(self, session: zenoh.Session, inbox: Inbox) -> list[Any]:
@@ -54,23 +56,21 @@ class ControllerNode(Node):
     def handle(self, event: Event) -> None:
         try:
             if event.kind == "state":
-                state = State.decode(event.payload, self.m)
-                self.states[state.step] = state
-                k, resend = state.step, state.step <= self.answered
+                due = self.pairing.on_state(State.decode(event.payload, self.m))
             else:
-                sp = Setpoint.decode(event.payload)
-                self.setpoints[sp.step] = sp
-                k, resend = sp.step, False
+                due = self.pairing.on_setpoints(Setpoints.decode(event.payload))
         except ProtocolError as exc:
-            self.count(f"bad_{event.kind}s")
-            self.warn(f"bad_{event.kind}", f"dropped a bad {event.kind} message: {exc}")
+            what = "states" if event.kind == "state" else "setpoints"
+            self.count(f"bad_{what}")
+            self.warn(f"bad_{what}", f"dropped a bad {event.kind} message: {exc}")
             return
-        state_k, setpoint_k = self.states.get(k), self.setpoints.get(k)
-        if state_k is not None and setpoint_k is not None and (k > self.answered or resend):
-            self.answer(state_k, setpoint_k)
+        if due is not None:
+            self.answer(*due)
 
     def answer(self, state: State, setpoint: Setpoint) -> None:
+        start = time.perf_counter()
         result, lengths = self.core.command(state, setpoint)
+        solve_time = time.perf_counter() - start
         if not result.feasible:
             self.infeasible += 1
             self.count("infeasible_distributions")
@@ -78,14 +78,13 @@ class ControllerNode(Node):
                       f"(residual {result.residual:.3g}); sending the nearest admissible tensions")
         assert self._pub is not None
         self._pub.put(
-            Command(state.step, state.t, tuple(result.tensions.tolist()), result.feasible, result.status).encode()
+            Command(state.step, state.t, tuple(result.tensions.tolist()), result.feasible, result.status,
+                    None, solve_time).encode()
             if lengths is None else
-            Command(state.step, state.t, (), result.feasible, result.status, tuple(lengths.tolist())).encode()
+            Command(state.step, state.t, (), result.feasible, result.status, tuple(lengths.tolist()),
+                    solve_time).encode()
         )
-        self.answered = max(self.answered, state.step)
-        for book in (self.states, self.setpoints):
-            for k in [k for k in book if k < state.step]:
-                del book[k]
+        self.pairing.done(state.step)
 
     def close(self) -> None:
-        log(self.name, f"answered up to step {self.answered}; infeasible distributions: {self.infeasible}")
+        log(self.name, f"answered up to step {self.pairing.answered}; infeasible distributions: {self.infeasible}")

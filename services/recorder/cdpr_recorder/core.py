@@ -3,6 +3,7 @@
 Messages arrive one at a time (decoded by the node); :meth:`RecorderCore.take` returns everything new
 as numpy columns, ready for one ``rr.send_columns`` per entity. Rules:
 
+* Messages come in blocks (``sim/telemetry``: states, commands, sensor readings; ``trajectory/setpoints``).
 * One row per step and stream: a repeated state, setpoint or command (the clock's resends) is dropped,
   the first copy is kept (as in :class:`cdpr.tools.metrics.RunMetrics`).
 * The tracking error of step k pairs state k with setpoint k, whatever their arrival order; the final
@@ -21,7 +22,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from cdpr.protocol import Command, Setpoint, State, Status
+from cdpr.protocol import Command, Sensors, Setpoint, State, Status
 
 F64 = NDArray[np.float64]
 I64 = NDArray[np.int64]
@@ -65,6 +66,20 @@ class CommandRows:
     t: F64
     feasible: NDArray[np.bool_]
     status: tuple[str, ...]
+    kind: str  # "tensions" or "lengths": what ``values`` holds
+    values: F64  # (n, m) the commanded tensions (N) or unstretched lengths (m)
+    solve_time: F64  # s the controller took (NaN: not reported)
+    lag: F64  # s from the state going out to the step's integration
+
+
+@dataclass(frozen=True)
+class SensorRows:
+    step: I64
+    t: F64
+    encoders: F64  # (n, m)
+    load_cells: F64  # (n, m)
+    accel: F64  # (n, 3)
+    gyro: F64  # (n, 3)
 
 
 @dataclass(frozen=True)
@@ -100,6 +115,7 @@ class Batch:
     errors: ErrorRows
     statuses: tuple[StatusRow, ...]
     path: PathRows
+    sensors: SensorRows
 
     @property
     def empty(self) -> bool:
@@ -107,6 +123,7 @@ class Batch:
             len(self.states.step)
             or len(self.setpoints.step)
             or len(self.commands.step)
+            or len(self.sensors.step)
             or len(self.errors.step)
             or self.statuses
             or self.path.step
@@ -169,13 +186,14 @@ class RecorderCore:
     params: Params
     states: list[State] = field(default_factory=list)
     setpoints: list[Setpoint] = field(default_factory=list)
-    commands: list[Command] = field(default_factory=list)
+    commands: list[tuple[Command, float]] = field(default_factory=list)  # (command, lag)
+    sensors: list[Sensors] = field(default_factory=list)
     statuses: list[StatusRow] = field(default_factory=list)
     pairs: list[tuple[State, Setpoint]] = field(default_factory=list)
     seen_states: set[int] = field(default_factory=set)
     seen_setpoints: set[int] = field(default_factory=set)
     seen_commands: set[int] = field(default_factory=set)
-    seen_ticks: set[int] = field(default_factory=set)
+    seen_sensors: set[int] = field(default_factory=set)
     waiting_states: dict[int, State] = field(default_factory=dict)  # no setpoint yet
     waiting_setpoints: dict[int, Setpoint] = field(default_factory=dict)  # no state yet
     last_setpoint: Setpoint | None = None
@@ -183,17 +201,10 @@ class RecorderCore:
     path: list[tuple[float, float, float]] = field(default_factory=list)
     path_step: int = -1  # step of the last path point
     duplicates: int = 0
-    repeated_ticks: int = 0
     recorded_states: int = 0
     _last_clock: tuple[str, str] | None = None
 
     # -- input ------------------------------------------------------------------------------------
-    def add_tick(self, step: int) -> None:
-        if step in self.seen_ticks:
-            self.repeated_ticks += 1
-        else:
-            self.seen_ticks.add(step)
-
     def add_state(self, s: State) -> bool:
         """Buffer state ``s``; False if that step was already recorded (a resend)."""
         if len(s.tensions) != self.params.cables:
@@ -227,12 +238,20 @@ class RecorderCore:
             self.pairs.append((s, sp))
         return True
 
-    def add_command(self, cmd: Command) -> bool:
+    def add_command(self, cmd: Command, lag: float = float("nan")) -> bool:
         if cmd.step in self.seen_commands:
             self.duplicates += 1
             return False
         self.seen_commands.add(cmd.step)
-        self.commands.append(cmd)
+        self.commands.append((cmd, lag))
+        return True
+
+    def add_sensors(self, reading: Sensors) -> bool:
+        if reading.step in self.seen_sensors:
+            self.duplicates += 1
+            return False
+        self.seen_sensors.add(reading.step)
+        self.sensors.append(reading)
         return True
 
     def add_status(self, st: Status) -> None:
@@ -247,7 +266,7 @@ class RecorderCore:
 
     @property
     def pending(self) -> bool:
-        return bool(self.states or self.setpoints or self.commands or self.statuses or self.pairs)
+        return bool(self.states or self.setpoints or self.commands or self.statuses or self.pairs or self.sensors)
 
     # -- output -----------------------------------------------------------------------------------
     def take(self, final: bool = False) -> Batch:
@@ -256,9 +275,10 @@ class RecorderCore:
         final_step = self.last_state.step if final and self.last_state is not None else None
         states = sorted(self.states, key=lambda s: s.step)
         setpoints = sorted(self.setpoints, key=lambda s: s.step)
-        commands = sorted(self.commands, key=lambda c: c.step)
+        commands = sorted(self.commands, key=lambda c: c[0].step)
+        sensors = sorted(self.sensors, key=lambda r: r.step)
         pairs = sorted(self.pairs, key=lambda sp: sp[0].step)
-        self.states, self.setpoints, self.commands, self.pairs = [], [], [], []
+        self.states, self.setpoints, self.commands, self.pairs, self.sensors = [], [], [], [], []
         statuses, self.statuses = tuple(self.statuses), []
         self.recorded_states += len(states)
 
@@ -285,10 +305,22 @@ class RecorderCore:
             scene=(sp_step % p.scene_every) == 0,
         )
         command_rows = CommandRows(
-            step=_ids([c.step for c in commands]),
-            t=np.asarray([c.t for c in commands], dtype=float),
-            feasible=np.asarray([c.feasible for c in commands], dtype=bool),
-            status=tuple(c.status for c in commands),
+            step=_ids([c.step for c, _ in commands]),
+            t=np.asarray([c.t for c, _ in commands], dtype=float),
+            feasible=np.asarray([c.feasible for c, _ in commands], dtype=bool),
+            status=tuple(c.status for c, _ in commands),
+            kind=commands[0][0].kind if commands else "tensions",
+            values=_rows([c.values for c, _ in commands], m),
+            solve_time=np.asarray([np.nan if c.solve_time is None else c.solve_time for c, _ in commands], dtype=float),
+            lag=np.asarray([lag for _, lag in commands], dtype=float),
+        )
+        sensor_rows = SensorRows(
+            step=_ids([r.step for r in sensors]),
+            t=np.asarray([r.t for r in sensors], dtype=float),
+            encoders=_rows([r.encoders for r in sensors], m),
+            load_cells=_rows([r.load_cells for r in sensors], m),
+            accel=_rows([r.accel for r in sensors], 3),
+            gyro=_rows([r.gyro for r in sensors], 3),
         )
         actual = _rows([s.pose for s, _ in pairs], 7)
         desired = _rows([d.pose for _, d in pairs], 7)
@@ -299,7 +331,8 @@ class RecorderCore:
             orientation=orientation_errors(desired[:, 3:], actual[:, 3:]) if pairs else np.zeros((0, 3)),
         )
         return Batch(
-            state_rows, setpoint_rows, command_rows, error_rows, statuses, self._path_rows(states, final_step)
+            state_rows, setpoint_rows, command_rows, error_rows, statuses, self._path_rows(states, final_step),
+            sensor_rows,
         )
 
     def _path_rows(self, states: list[State], final_step: int | None) -> PathRows:

@@ -19,7 +19,7 @@ import rerun as rr
 
 from cdpr import recording
 from cdpr.config.scenario import Scenario
-from cdpr.protocol import Command, Keys, ProtocolError, Setpoint, State, Status, Tick
+from cdpr.protocol import Keys, ProtocolError, Setpoints, Status, Telemetry
 from cdpr.protocol.session import session_info
 from cdpr.runtime.service import Node
 from cdpr.runtime.transport import Event, RateLimitedLog, log
@@ -98,23 +98,26 @@ class RecorderNode(Node):
         recording.log_planned_path(rec, [sc.trajectory.sample(float(t)).position for t in times])
 
     # -- wiring -----------------------------------------------------------------------------------
-    subscribes = ("tick", "state", "setpoint", "command")
+    subscribes = ("telemetry", "setpoints")
 
     def handle(self, event: Event) -> None:
+        core = self.core
         try:
-            if event.kind == "state":
-                state = State.decode(event.payload, self.m)
-                self.core.add_state(state)
-                self.tension_peak = max(self.tension_peak, *state.tensions)
-            elif event.kind == "setpoint":
-                self.core.add_setpoint(Setpoint.decode(event.payload))
-            elif event.kind == "command":
-                self.core.add_command(Command.decode(event.payload, self.m))
-            elif event.kind == "tick":
-                self.core.add_tick(Tick.decode(event.payload).step)
+            if event.kind == "telemetry":
+                block = Telemetry.decode(event.payload, self.m)
+                for state in block.states:
+                    core.add_state(state)
+                    self.tension_peak = max(self.tension_peak, *state.tensions)
+                for cmd, lag in zip(block.commands, block.lags, strict=True):
+                    core.add_command(cmd, lag)
+                for reading in block.sensors:
+                    core.add_sensors(reading)
+            else:
+                for sp in Setpoints.decode(event.payload).items:
+                    core.add_setpoint(sp)
         except ProtocolError as exc:
             self.bad_messages += 1
-            self.count(f"bad_{event.kind}s")
+            self.count(f"bad_{event.kind}")
             self.warn(f"bad_{event.kind}", f"dropped a bad {event.kind} message: {exc}")
             return
         if self.core.due:
@@ -189,6 +192,11 @@ class RecorderNode(Node):
         if len(c.step):
             recording.send_scalars(rec, recording.COMMAND_FEASIBLE, c.step, c.t, c.feasible.astype(float))
             bad = [j for j, status in enumerate(c.status) if status != "ok"]
+            commanded = recording.COMMAND_TENSIONS if c.kind == "tensions" else recording.COMMAND_LENGTHS
+            recording.send_scalars(rec, commanded, c.step, c.t, c.values)
+            timed = ~np.isnan(c.solve_time)
+            recording.send_scalars(rec, recording.COMMAND_SOLVE_TIME, c.step[timed], c.t[timed], c.solve_time[timed])
+            recording.send_scalars(rec, recording.LOOP_LAG, c.step, c.t, c.lag)
             recording.send_text(
                 rec,
                 recording.COMMAND_STATUS,
@@ -225,6 +233,12 @@ class RecorderNode(Node):
                 [r.t for r in changed],
                 [f"{r.state}: {r.reason}" if r.reason else r.state for r in changed],
             )
+        r = b.sensors
+        if len(r.step):
+            recording.send_scalars(rec, recording.SENSOR_ENCODERS, r.step, r.t, r.encoders)
+            recording.send_scalars(rec, recording.SENSOR_LOAD_CELLS, r.step, r.t, r.load_cells)
+            recording.send_scalars(rec, recording.SENSOR_ACCEL, r.step, r.t, r.accel)
+            recording.send_scalars(rec, recording.SENSOR_GYRO, r.step, r.t, r.gyro)
         recording.send_path(rec, b.path.step, b.path.t, b.path.points)
 
     def close(self) -> None:
@@ -246,6 +260,6 @@ class RecorderNode(Node):
             self.name,
             f"recorded {self.core.recorded_states} states (last step {last}){where}; "
             f"recording id {self.recording_id}; duplicates {self.core.duplicates}, "
-            f"repeated ticks {self.core.repeated_ticks}, bad messages {self.bad_messages}; "
+            f"bad messages {self.bad_messages}; "
             f"closed in {took:.2f} s",
         )

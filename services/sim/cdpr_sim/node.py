@@ -1,24 +1,30 @@
 """The sim node: a Zenoh shell around :class:`cdpr_sim.core.PlatformSim`.
 
-Step k is integrated only when both the clock's tick k and a valid command k have arrived; the state
-at step k+1 is published right after. On tick k while at step k the state k is published (again, if
-the tick is repeated: that is how the clock asks for a resend). Bad commands are dropped with a
-one-line log; out-of-range tensions are clamped to [0, tmax] and counted.
+Step k is integrated only when the clock has granted it (a ``clock/tick`` whose window covers k) and a
+valid command k has arrived; the state k+1 goes out on ``sim/state`` right after. The first state of a
+grant goes out when the grant arrives; a tick marked ``resend`` publishes the current state again (how
+the clock asks for one). Every state, the command applied with it and the sensor readings also go into
+``sim/telemetry``, in blocks of :data:`TELEMETRY_EVERY` steps, at the end, and when the clock asks for a
+report (``flush``, ``resend``). Bad commands are dropped with a one-line log; out-of-range tensions are
+clamped to [0, tmax] and counted.
 """
 
 from __future__ import annotations
 
+import time
 from typing import Any
 
 import numpy as np
 import zenoh
 
 from cdpr.config.scenario import Scenario
-from cdpr.protocol import Command, Keys, ProtocolError, Tick
+from cdpr.protocol import Command, Keys, ProtocolError, Sensors, State, Telemetry, Tick
 from cdpr.runtime.service import Node
 from cdpr.runtime.transport import Event, Inbox, RateLimitedLog, log
 from cdpr_sim.core import make_sim, state_message
 from cdpr_sim.sensors import SensorConfig, SensorSuite
+
+TELEMETRY_EVERY = 50  # steps per sim/telemetry block
 
 
 class SimNode(Node):
@@ -34,9 +40,10 @@ class SimNode(Node):
         self.total_steps = scenario.total_steps
         self.sim = make_sim(scenario)
         self.m = scenario.robot.m
-        self.allowed = -1  # highest tick received
-        self.seen_ticks: set[int] = set()  # ticks received for steps not yet taken (a repeat asks for a resend)
+        self.allowed = -1  # the last step granted by the clock
+        self.flush_at = -1  # a report is due once this step is integrated (-1: none asked)
         self.published_step = -1
+        self.published_at = 0.0  # monotonic time the current state went out
         self.pending: Command | None = None  # a valid command for the current step, waiting for its tick
         self.clamped = 0
         self.last_command: Command | None = None  # the command of the last step taken
@@ -47,14 +54,26 @@ class SimNode(Node):
         self.sensors = None if sensors is None else SensorSuite(SensorConfig.from_spec(sensors, self.m),
                                                                   scenario.dt)
         self._sensors_pub: zenoh.Publisher | None = None
+        self._sensors_wanted = False  # someone subscribes to sim/sensors (the readings go to telemetry anyway)
+        self._telemetry_pub: zenoh.Publisher | None = None
+        self.block_states: list[State] = []
+        self.block_commands: list[Command] = []
+        self.block_lags: list[float] = []
+        self.block_sensors: list[Sensors] = []
+        self._state_msg: State | None = None
 
     # -- wiring -----------------------------------------------------------------------------------
     subscribes = ("tick", "command")
-    publishes = ("state", "sensors")
+    publishes = ("state", "telemetry", "sensors")
 
     def declare(self, session: zenoh.Session, inbox: Inbox) -> list[Any]:
-        self._pub, self._sensors_pub = self.publishers["state"], self.publishers["sensors"]
-        return []
+        self._pub, self._telemetry_pub = self.publishers["state"], self.publishers["telemetry"]
+        self._sensors_pub = self.publishers["sensors"]
+
+        def on_matching(status: zenoh.MatchingStatus) -> None:
+            self._sensors_wanted = status.matching
+
+        return [self._sensors_pub.declare_matching_listener(on_matching)]
 
     def handle(self, event: Event) -> None:
         if event.kind == "tick":
@@ -64,7 +83,7 @@ class SimNode(Node):
                 self.count("bad_ticks")
                 self.warn("bad_tick", f"dropped a bad clock/tick: {exc}")
                 return
-            self.on_tick(tick.step)
+            self.on_tick(tick)
         elif event.kind == "command":
             try:
                 cmd = Command.decode(event.payload, self.m, self.command_kind)
@@ -79,29 +98,52 @@ class SimNode(Node):
     def step(self) -> int:
         return self.sim.step_count
 
-    def publish_state(self) -> None:
+    def publish_state(self, again: bool = False) -> None:
+        """State k on sim/state (and its sensor readings); the first time, into the telemetry block too."""
         assert self._pub is not None
-        self._pub.put(state_message(self.sim.state(), self.clamped).encode())
-        if self.sensors is not None and self._sensors_pub is not None:  # sim/sensors, right after the state
-            self._sensors_pub.put(self.sensors.read(self.sim).encode())
+        if again and self._state_msg is not None and self._state_msg.step == self.step:
+            msg = self._state_msg
+        else:
+            msg = self._state_msg = state_message(self.sim.state(), self.clamped)
+        self._pub.put(msg.encode())
+        self.published_at = time.monotonic()
+        if self.published_step == self.step:
+            return
         self.published_step = self.step
+        self.block_states.append(msg)
+        if self.sensors is not None:
+            reading = self.sensors.read(self.sim)
+            self.block_sensors.append(reading)
+            if self._sensors_wanted and self._sensors_pub is not None:
+                self._sensors_pub.put(reading.encode())
 
-    def on_tick(self, k: int) -> None:
-        if k > self.allowed:
-            self.allowed = k
-        repeat = k in self.seen_ticks
-        if k >= self.step:
-            self.seen_ticks.add(k)
-        if self.published_step < 0 and k != self.step:
+    def flush(self) -> None:
+        """Send the telemetry block (with the current state again if nothing is new: a heartbeat)."""
+        assert self._telemetry_pub is not None
+        if not self.block_states and self._state_msg is not None:
+            self.block_states.append(self._state_msg)
+        self._telemetry_pub.put(Telemetry(tuple(self.block_states), tuple(self.block_commands),
+                                          tuple(self.block_lags), tuple(self.block_sensors)).encode())
+        self.block_states, self.block_commands, self.block_lags, self.block_sensors = [], [], [], []
+
+    def on_tick(self, tick: Tick) -> None:
+        if self.published_step < 0 and tick.step != self.step:
             # A sim that joins a session already under way announces where it is (step 0): the clock
             # sees the step go back and ends the session, since this sim's state is not the session's.
             self.publish_state()
+            self.flush()
             return
-        if k != self.step:
-            return
-        if self.published_step != self.step or repeat:
+        if tick.until > self.allowed:
+            self.allowed = tick.until
+        if tick.flush:
+            self.flush_at = max(self.flush_at, tick.until)
+        if tick.resend:
+            if tick.step == self.step:
+                self.publish_state(again=True)
+            self.flush()
+        elif self.step <= self.allowed and self.published_step != self.step:
             self.publish_state()
-        if self.pending is not None:
+        if self.pending is not None and self.step <= self.allowed:
             cmd, self.pending = self.pending, None
             self.on_command(cmd)
 
@@ -127,6 +169,8 @@ class SimNode(Node):
             return
         report = self.sim.step(np.asarray(cmd.values))
         self.last_command = cmd
+        self.block_commands.append(cmd)
+        self.block_lags.append(time.monotonic() - self.published_at)
         if report.clamped_low or report.clamped_high:
             self.clamped += 1
             self.count("clamped_commands")
@@ -138,8 +182,12 @@ class SimNode(Node):
                 f"step {cmd.step}: clamped {report.clamped_high} length(s) above max_length = "
                 f"{self.scenario.robot.max_length:g} m",
             )
-        self.seen_ticks.discard(cmd.step)
         self.publish_state()
+        if (len(self.block_states) >= TELEMETRY_EVERY or self.step >= self.total_steps
+                or 0 <= self.flush_at <= cmd.step):
+            if self.flush_at <= cmd.step:
+                self.flush_at = -1
+            self.flush()
 
     def close(self) -> None:
         log(self.name, f"stopped at step {self.step}/{self.total_steps}; clamped commands: {self.clamped}"

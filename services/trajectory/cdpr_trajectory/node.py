@@ -1,4 +1,10 @@
-"""The trajectory node: on every ``clock/tick`` k, publish ``trajectory/setpoint`` k."""
+"""The trajectory node: setpoints ahead of the clock's grants, in blocks on ``trajectory/setpoints``.
+
+The trajectory does not depend on the state, so it runs ahead: when a tick grants steps up to ``until``
+and fewer than :data:`AHEAD`/2 setpoints are out beyond it, the next block goes out, up to ``until`` +
+:data:`AHEAD` (never past the last step). A ``resend`` tick publishes again everything from its step
+on (a controller that came back has lost them).
+"""
 
 from __future__ import annotations
 
@@ -9,10 +15,12 @@ from typing import Any
 import zenoh
 
 from cdpr.config.scenario import Scenario
-from cdpr.protocol import Keys, ProtocolError, Setpoint, Tick
+from cdpr.protocol import Keys, ProtocolError, Setpoint, Setpoints, Tick
 from cdpr.runtime.service import Node
 from cdpr.runtime.transport import Event, Inbox, RateLimitedLog
 from cdpr_trajectory.core import setpoint_at
+
+AHEAD = 100  # setpoints published beyond the last granted step
 
 
 class TrajectoryNode(Node):
@@ -28,14 +36,16 @@ class TrajectoryNode(Node):
         super().__init__(keys)
         self.trajectory = scenario.trajectory
         self.dt = scenario.dt
+        self.last_step = scenario.total_steps - 1
+        self.published = -1  # the last setpoint published
         self.warn = RateLimitedLog(self.name)
         self._pub: zenoh.Publisher | None = None
 
     subscribes = ("tick",)
-    publishes = ("setpoint",)
+    publishes = ("setpoints",)
 
     def declare(self, session: zenoh.Session, inbox: Inbox) -> list[Any]:
-        self._pub = self.publishers["setpoint"]
+        self._pub = self.publishers["setpoints"]
         return []
 
     def handle(self, event: Event) -> None:
@@ -45,5 +55,14 @@ class TrajectoryNode(Node):
             self.count("bad_ticks")
             self.warn("bad_tick", f"dropped a bad clock/tick: {exc}")
             return
+        if tick.resend:
+            self.publish(tick.step, self.published)
+        if tick.until > self.published - AHEAD // 2 and self.published < self.last_step:
+            self.publish(self.published + 1, min(tick.until + AHEAD, self.last_step))
+
+    def publish(self, first: int, last: int) -> None:
         assert self._pub is not None
-        self._pub.put(setpoint_at(self.trajectory, tick.step, self.dt).encode())
+        if last >= first:
+            self._pub.put(Setpoints(tuple(setpoint_at(self.trajectory, k, self.dt) for k in range(first, last + 1)))
+                          .encode())
+            self.published = max(self.published, last)

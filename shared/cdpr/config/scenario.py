@@ -53,10 +53,10 @@ class TdaSpec(_Strict):
     @field_validator("method")
     @classmethod
     def _known(cls, v: str) -> str:
-        from cdpr.mechanics.tda import METHODS
+        from cdpr.mechanics.tda import METHOD_NAMES
 
-        if v not in METHODS:
-            raise ValueError(f"unknown TDA method {v!r} (known: {', '.join(sorted(METHODS))})")
+        if v not in METHOD_NAMES:
+            raise ValueError(f"unknown TDA method {v!r} (known: {', '.join(sorted(METHOD_NAMES))})")
         return v
 
 
@@ -228,7 +228,11 @@ class Scenario:
         return self.spec.controller.output
 
 
-def scenario_from_spec(spec: ScenarioSpec, where: str, base_dir: Path | None = None) -> Scenario:
+CHECKS = ("workspace", "tda")  # what loading a scenario checks by default (see load_scenario)
+
+
+def scenario_from_spec(spec: ScenarioSpec, where: str, base_dir: Path | None = None,
+                       checks: tuple[str, ...] = CHECKS) -> Scenario:
     robot_ref = spec.robot
     if base_dir is not None and robot_ref.endswith((".yaml", ".yml")) and not Path(robot_ref).is_absolute():
         robot_ref = str(base_dir / robot_ref)
@@ -252,15 +256,17 @@ def scenario_from_spec(spec: ScenarioSpec, where: str, base_dir: Path | None = N
         trajectory = spec.trajectory.build()
     except ValueError as exc:
         raise InputError(f"{where}: trajectory: {exc}") from None
-    from cdpr.mechanics.workspace import check_trajectory
+    if "workspace" in checks:
+        from cdpr.mechanics.workspace import check_trajectory
 
-    check_trajectory(robot, trajectory, spec.controller.variant, where)  # static and feed-forward wrenches
-    from cdpr.mechanics.tda import make_tda
+        check_trajectory(robot, trajectory, spec.controller.variant, where)  # static and feed-forward wrenches
+    if "tda" in checks:
+        from cdpr.mechanics.tda import make_tda
 
-    try:
-        make_tda(spec.controller.tda.method, **spec.controller.tda.options)
-    except (TypeError, ValueError) as exc:
-        raise InputError(f"{where}: controller.tda.options: {str(exc).splitlines()[0]}") from None
+        try:
+            make_tda(spec.controller.tda.method, **spec.controller.tda.options)
+        except (TypeError, ValueError) as exc:
+            raise InputError(f"{where}: controller.tda.options: {str(exc).splitlines()[0]}") from None
     duration = spec.duration if spec.duration is not None else trajectory.duration + 1.0
     if spec.initial is not None:
         p0 = np.array(spec.initial.position, dtype=float)
@@ -290,15 +296,23 @@ def scenario_from_spec(spec: ScenarioSpec, where: str, base_dir: Path | None = N
     )
 
 
-def load_scenario(name_or_path: str | Path, overrides: dict[str, Any] | None = None) -> Scenario:
-    """A shipped scenario name or a YAML path, plus optional top-level overrides (e.g. ``{"duration": 2}``)."""
+def load_scenario(name_or_path: str | Path, overrides: dict[str, Any] | None = None,
+                  checks: tuple[str, ...] = CHECKS) -> Scenario:
+    """A shipped scenario name or a YAML path, plus optional top-level overrides (e.g. ``{"duration": 2}``).
+
+    Beyond the file's own validation, ``checks`` (default: both) says what else to check: ``workspace``,
+    that the trajectory stays in the wrench-feasible workspace (static and feed-forward wrenches);
+    ``tda``, that the tension distribution method takes its options. A node checks only what it needs
+    (:attr:`cdpr.runtime.service.Node.scenario_checks`): the launcher and the clock the workspace, the
+    controller its method; a session's start-up does not repeat the work in every process.
+    """
     path = resolve(name_or_path, "scenarios", "scenario")
     data = read_yaml(path)
     for key, value in (overrides or {}).items():
         if value is not None:
             data[key] = value
     spec = parse_model(ScenarioSpec, data, path)
-    return scenario_from_spec(spec, str(path), path.parent)
+    return scenario_from_spec(spec, str(path), path.parent, checks)
 
 
 def shipped_scenarios() -> list[str]:

@@ -38,7 +38,6 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
-from scipy.optimize import linprog
 
 from cdpr.errors import InputError
 from cdpr.mechanics.dynamics import gravity_wrench, required_wrench
@@ -89,6 +88,8 @@ def _unit(v: Array) -> Array:
 
 def _lp_feasible(W: Array, w: Array, lb: Array, ub: Array) -> bool:
     """One linear program: is there f in [lb, ub] with W f = w? (HiGHS; rank-deficient W is fine)."""
+    from scipy.optimize import linprog  # only for the rare rank-deficient pose
+
     res = linprog(np.zeros(W.shape[1]), A_eq=W, b_eq=w, bounds=np.column_stack([lb, ub]), method="highs")
     return bool(res.status == 0)
 

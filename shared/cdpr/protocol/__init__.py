@@ -18,7 +18,7 @@ from typing import Any, ClassVar
 
 import msgpack
 
-PROTOCOL_VERSION = 1
+PROTOCOL_VERSION = 2  # 2: ticks grant windows; setpoints and telemetry travel in blocks
 SESSION_RE = re.compile(r"^[A-Za-z0-9_-]{1,64}$")
 
 # Service names that can hold a liveliness token `cdpr/{session}/alive/{name}`.
@@ -59,16 +59,20 @@ class Keys:
         return f"{self.prefix}/sim/state"
 
     @property
-    def setpoint(self) -> str:
-        return f"{self.prefix}/trajectory/setpoint"
-
-    @property
     def command(self) -> str:
         return f"{self.prefix}/controller/command"
 
     @property
     def sensors(self) -> str:
         return f"{self.prefix}/sim/sensors"
+
+    @property
+    def setpoints(self) -> str:
+        return f"{self.prefix}/trajectory/setpoints"
+
+    @property
+    def telemetry(self) -> str:
+        return f"{self.prefix}/sim/telemetry"
 
     @property
     def info(self) -> str:
@@ -103,9 +107,10 @@ class Keys:
             "tick": self.tick,
             "status": self.status,
             "state": self.state,
-            "setpoint": self.setpoint,
             "command": self.command,
             "sensors": self.sensors,
+            "setpoints": self.setpoints,
+            "telemetry": self.telemetry,
             "info": self.info,
             "alive": self.alive("{service}"),
             "stats": self.stats("{service}"),
@@ -192,25 +197,69 @@ def _floats(values: Sequence[float]) -> list[float]:
     return list(map(float, values))
 
 
+def _flat(rows: Sequence[Sequence[float]]) -> list[float]:
+    return [float(x) for row in rows for x in row]
+
+
+def _ints(msg: dict[Any, Any], name: str, length: int | None = None) -> list[int]:
+    value = _field(msg, name)
+    if not isinstance(value, list) or any(isinstance(x, bool) or not isinstance(x, int) or x < 0 for x in value):
+        raise ProtocolError(f"{name}: expected an array of integers >= 0")
+    if length is not None and len(value) != length:
+        raise ProtocolError(f"{name}: expected {length} integers, got {len(value)}")
+    return value
+
+
+def _rows(msg: dict[Any, Any], name: str, n: int, width: int | None) -> list[tuple[float, ...]]:
+    """``n`` rows of ``width`` numbers from the flat array ``name`` (``width`` None: n rows of equal width)."""
+    flat = _vector(msg, name, None if width is None else n * width)
+    if width is None:
+        if n == 0 or len(flat) % n:
+            raise ProtocolError(f"{name}: expected {n} rows of equal length, got {len(flat)} numbers")
+        width = len(flat) // n
+    return [flat[i * width:(i + 1) * width] for i in range(n)]
+
+
 # --------------------------------------------------------------------------------------------------
 # Messages
 
 
 @dataclass(frozen=True, slots=True)
 class Tick:
-    """``clock/tick``: step ``step`` (time ``t``) may be computed. Repeated when a step must be redone."""
+    """``clock/tick``: steps ``step`` … ``until`` (times ``t`` … ``until·dt``) may be computed.
+
+    In fast mode a tick grants a window of steps; in realtime mode one step, at its deadline. ``resend``:
+    the clock saw no progress (or a participant came back) and asks for the current state and the
+    setpoints again, ``step`` then being the sim's current step. ``flush``: the clock will grant nothing
+    more until it hears of progress, so the sim sends its telemetry once it has computed ``until``.
+    """
 
     KEY: ClassVar[str] = "tick"
     step: int
     t: float
+    until: int = -1  # the last step granted (-1: ``step``)
+    resend: bool = False
+    flush: bool = False
+
+    def __post_init__(self) -> None:
+        if self.until < self.step:
+            object.__setattr__(self, "until", self.step)
 
     def encode(self) -> bytes:
-        return pack({"step": self.step, "t": self.t})
+        return pack({"step": self.step, "t": self.t, "until": self.until, "resend": self.resend,
+                     "flush": self.flush})
 
     @classmethod
     def decode(cls, payload: bytes) -> Tick:
         msg = unpack(payload)
-        return cls(_int(msg, "step"), _float(msg, "t"))
+        step = _int(msg, "step")
+        until = _int(msg, "until") if "until" in msg else step
+        if until < step:
+            raise ProtocolError(f"until: must be >= step ({step}), got {until}")
+        resend, flush = msg.get("resend", False), msg.get("flush", False)
+        if not isinstance(resend, bool) or not isinstance(flush, bool):
+            raise ProtocolError("resend, flush: expected true/false")
+        return cls(step, _float(msg, "t"), until, resend, flush)
 
 
 @dataclass(frozen=True, slots=True)
@@ -307,6 +356,7 @@ class Command:
     feasible: bool = True
     status: str = "ok"
     lengths: tuple[float, ...] | None = None
+    solve_time: float | None = None  # s the controller spent on this step (optional)
 
     @property
     def kind(self) -> str:
@@ -326,6 +376,7 @@ class Command:
                 self.kind: _floats(self.values),
                 "feasible": bool(self.feasible),
                 "status": self.status,
+                **({} if self.solve_time is None else {"solve_time": float(self.solve_time)}),
             }
         )
 
@@ -340,10 +391,11 @@ class Command:
         if not isinstance(status, str):
             raise ProtocolError(f"status: expected a string, got {type(status).__name__}")
         step, t = _int(msg, "step"), _float(msg, "t")
+        solve_time = _float(msg, "solve_time") if "solve_time" in msg else None
         if "lengths" not in msg:
             if expect == "lengths":
                 raise ProtocolError("lengths: missing (this session's controller commands cable lengths)")
-            return cls(step, t, _vector(msg, "tensions", cables), feasible, status)
+            return cls(step, t, _vector(msg, "tensions", cables), feasible, status, None, solve_time)
         if "tensions" in msg:
             raise ProtocolError("lengths: a command carries tensions or lengths, not both")
         if expect == "tensions":
@@ -352,7 +404,7 @@ class Command:
         for i, x in enumerate(lengths):
             if x <= 0.0:
                 raise ProtocolError(f"lengths[{i}]: must be > 0, got {x}")
-        return cls(step, t, (), feasible, status, lengths)
+        return cls(step, t, (), feasible, status, lengths, solve_time)
 
 
 @dataclass(frozen=True, slots=True)
@@ -397,6 +449,119 @@ class Sensors:
             _vector(msg, "accel", 3),
             _vector(msg, "gyro", 3),
         )
+
+
+@dataclass(frozen=True, slots=True)
+class Setpoints:
+    """``trajectory/setpoints``: consecutive setpoints ``first`` … ``first + len − 1`` in one message.
+
+    On the wire the columns are flat arrays: ``t`` (n), ``pose`` (7n), ``twist`` (6n), ``accel`` (6n).
+    """
+
+    KEY: ClassVar[str] = "setpoints"
+    items: tuple[Setpoint, ...]
+
+    def encode(self) -> bytes:
+        s = self.items
+        return pack({"first": s[0].step if s else 0, "t": [x.t for x in s], "pose": _flat([x.pose for x in s]),
+                     "twist": _flat([x.twist for x in s]), "accel": _flat([x.accel for x in s])})
+
+    @classmethod
+    def decode(cls, payload: bytes) -> Setpoints:
+        msg = unpack(payload)
+        first = _int(msg, "first")
+        t = _vector(msg, "t", None)
+        n = len(t)
+        pose, twist, accel = _rows(msg, "pose", n, 7), _rows(msg, "twist", n, 6), _rows(msg, "accel", n, 6)
+        return cls(tuple(Setpoint(first + i, t[i], pose[i], twist[i], accel[i]) for i in range(n)))
+
+
+@dataclass(frozen=True, slots=True)
+class Telemetry:
+    """``sim/telemetry``: what the sim did over a block of steps, for the clock, recorders and monitors.
+
+    ``states``: the states the sim published on ``sim/state`` since the last block (every one, in step
+    order; a block sent on request may repeat the current one); ``commands``: the commands it applied
+    over the same steps (the first valid one of each step), each with ``lags[i]``, the seconds from the
+    tick that allowed the step to its integration (realtime: how far the loop ran behind the clock; 0
+    when the tick came first), and the controller's ``solve_time`` when it sent one; ``sensors``: the
+    sensor readings taken with the states (empty without sensors). On the wire every column is a flat
+    array (see docs/protocol.md).
+    """
+
+    KEY: ClassVar[str] = "telemetry"
+    states: tuple[State, ...]
+    commands: tuple[Command, ...] = ()
+    lags: tuple[float, ...] = ()
+    sensors: tuple[Sensors, ...] = ()
+
+    def encode(self) -> bytes:
+        s, c, r = self.states, self.commands, self.sensors
+        kind = c[0].kind if c else "tensions"
+        msg: dict[str, Any] = {
+            "step": [x.step for x in s], "t": [x.t for x in s], "pose": _flat([x.pose for x in s]),
+            "twist": _flat([x.twist for x in s]), "cable_lengths": _flat([x.cable_lengths for x in s]),
+            "tensions": _flat([x.tensions for x in s]), "clamped": [x.clamped for x in s],
+            "command": {
+                "step": [x.step for x in c], "t": [x.t for x in c], "kind": kind,
+                "values": _flat([x.values for x in c]),
+                "feasible": [bool(x.feasible) for x in c], "status": [x.status for x in c],
+                "solve_time": [-1.0 if x.solve_time is None else float(x.solve_time) for x in c],
+                "lag": _floats(self.lags),
+            },
+        }
+        if r:
+            msg["sensors"] = {
+                "step": [x.step for x in r], "t": [x.t for x in r], "encoders": _flat([x.encoders for x in r]),
+                "load_cells": _flat([x.load_cells for x in r]), "accel": _flat([x.accel for x in r]),
+                "gyro": _flat([x.gyro for x in r]),
+            }
+        return pack(msg)
+
+    @classmethod
+    def decode(cls, payload: bytes, cables: int | None = None) -> Telemetry:
+        msg = unpack(payload)
+        steps = _ints(msg, "step")
+        n = len(steps)
+        t = _vector(msg, "t", n)
+        lengths = _rows(msg, "cable_lengths", n, cables) if n else []
+        m = len(lengths[0]) if lengths else (cables or 0)
+        pose, twist, tensions = _rows(msg, "pose", n, 7), _rows(msg, "twist", n, 6), _rows(msg, "tensions", n, m)
+        clamped = _ints(msg, "clamped", n)
+        states = tuple(State(steps[i], t[i], pose[i], twist[i], lengths[i], tensions[i], clamped[i]) for i in range(n))
+        c = _field(msg, "command")
+        if not isinstance(c, dict):
+            raise ProtocolError("command: expected a map")
+        c_steps = _ints(c, "step")
+        k = len(c_steps)
+        c_t = _vector(c, "t", k)
+        kind = _field(c, "kind")
+        if kind not in ("tensions", "lengths"):
+            raise ProtocolError(f"command.kind: expected tensions or lengths, got {kind!r}")
+        values = _rows(c, "values", k, m) if k else []
+        feasible, status = _field(c, "feasible"), _field(c, "status")
+        if not isinstance(feasible, list) or len(feasible) != k or not all(isinstance(x, bool) for x in feasible):
+            raise ProtocolError(f"command.feasible: expected {k} true/false values")
+        if not isinstance(status, list) or len(status) != k or not all(isinstance(x, str) for x in status):
+            raise ProtocolError(f"command.status: expected {k} strings")
+        solve, lags = _vector(c, "solve_time", k), _vector(c, "lag", k)
+        commands = tuple(
+            Command(c_steps[i], c_t[i], values[i] if kind == "tensions" else (), feasible[i], status[i],
+                    values[i] if kind == "lengths" else None, solve[i] if solve[i] >= 0.0 else None)
+            for i in range(k)
+        )
+        sensors: tuple[Sensors, ...] = ()
+        if "sensors" in msg:
+            r = msg["sensors"]
+            if not isinstance(r, dict):
+                raise ProtocolError("sensors: expected a map")
+            r_steps = _ints(r, "step")
+            j = len(r_steps)
+            r_t = _vector(r, "t", j)
+            enc, cells = _rows(r, "encoders", j, m), _rows(r, "load_cells", j, m)
+            acc, gyro = _rows(r, "accel", j, 3), _rows(r, "gyro", j, 3)
+            sensors = tuple(Sensors(r_steps[i], r_t[i], enc[i], cells[i], acc[i], gyro[i]) for i in range(j))
+        return cls(states, commands, lags, sensors)
 
 
 @dataclass(frozen=True, slots=True)

@@ -26,8 +26,9 @@ TOPICS: dict[str, Topic] = {
     "tick": Topic("clock/tick", "Tick"),
     "status": Topic("clock/status", "Status"),
     "state": Topic("sim/state", "State"),
-    "setpoint": Topic("trajectory/setpoint", "Setpoint"),
+    "setpoints": Topic("trajectory/setpoints", "Setpoints"),
     "command": Topic("controller/command", "Command"),
+    "telemetry": Topic("sim/telemetry", "Telemetry"),
     "sensors": Topic("sim/sensors", "Sensors"),
     "info": Topic("session/info", "SessionInfo", kind="queryable"),
     "stats": Topic("stats/{node}", "ServiceStats"),
@@ -45,11 +46,11 @@ class NodeWiring:
 EVERY_NODE = NodeWiring(subscribes=("status",), publishes=("stats", "alive"))
 
 WIRING: dict[str, NodeWiring] = {
-    "clock": NodeWiring(subscribes=("state", "stats"), publishes=("tick", "status", "info")),
-    "sim": NodeWiring(subscribes=("tick", "command"), publishes=("state", "sensors")),
-    "trajectory": NodeWiring(subscribes=("tick",), publishes=("setpoint",)),
-    "controller": NodeWiring(subscribes=("state", "setpoint"), publishes=("command",)),
-    "recorder": NodeWiring(subscribes=("tick", "state", "setpoint", "command"), publishes=()),
+    "clock": NodeWiring(subscribes=("telemetry", "stats"), publishes=("tick", "status", "info")),
+    "sim": NodeWiring(subscribes=("tick", "command"), publishes=("state", "telemetry", "sensors")),
+    "trajectory": NodeWiring(subscribes=("tick",), publishes=("setpoints",)),
+    "controller": NodeWiring(subscribes=("state", "setpoints"), publishes=("command",)),
+    "recorder": NodeWiring(subscribes=("telemetry", "setpoints"), publishes=()),
 }
 
 

@@ -71,6 +71,14 @@ TENSION_MIN = "tension/tmin"
 TENSION_MAX = "tension/tmax"
 COMMAND_FEASIBLE = "command/feasible"  # 1 feasible, 0 not (controller's tension distribution)
 COMMAND_STATUS = "command/status"  # TextLog of every command whose status is not "ok"
+COMMAND_TENSIONS = "command/tensions"  # m values: the tensions the controller commanded, N (tension output)
+COMMAND_LENGTHS = "command/lengths"  # m values: the unstretched lengths commanded, m (length output)
+COMMAND_SOLVE_TIME = "command/solve_time"  # s the controller spent on the step (feedback law + TDA)
+LOOP_LAG = "loop/lag"  # s from the sim's state going out to the step's integration (controller + wait)
+SENSOR_ENCODERS = "sensors/encoders"  # m values: cable lengths the winch encoders measure, m
+SENSOR_LOAD_CELLS = "sensors/load_cells"  # m values: cable tensions the load cells measure, N
+SENSOR_ACCEL = "sensors/imu/accel"  # [ax, ay, az] specific force in the platform frame, m/s²
+SENSOR_GYRO = "sensors/imu/gyro"  # [wx, wy, wz] angular velocity in the platform frame, rad/s
 CLOCK = "clock"  # clock/<stat> for each number in clock/status stats (nested maps joined with "/")
 CLOCK_STATE = "clock/state"  # TextLog of the clock's state changes
 

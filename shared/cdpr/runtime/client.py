@@ -43,7 +43,8 @@ import numpy as np
 import zenoh
 
 from cdpr.errors import InputError
-from cdpr.protocol import Command, Keys, ProtocolError, Setpoint, State, Status
+from cdpr.protocol import Command, Keys, ProtocolError, Setpoint, Setpoints, State, Status
+from cdpr.protocol.pairing import Pairing
 from cdpr.protocol.session import SessionInfo
 from cdpr.runtime.service import Node, serve
 from cdpr.runtime.transport import Event, Inbox, RateLimitedLog, StopFlag, log, zenoh_config
@@ -202,7 +203,7 @@ class _ControllerNode(Node):
     """The controller's side of the protocol, around a user's :class:`RemoteController`."""
 
     name = "controller"
-    subscribes = ("state", "setpoint")  # declared before session/info is fetched: queued until then
+    subscribes = ("state", "setpoints")  # declared before session/info is fetched: queued until then
     publishes = ("command",)
 
     def __init__(self, ctrl: RemoteController, keys: Keys, stop: StopFlag, fetch: bool,
@@ -215,8 +216,7 @@ class _ControllerNode(Node):
         self.info_timeout = info_timeout
         self.idle_timeout = idle_timeout
         self.m: int | None = None
-        self.states: dict[int, State] = {}
-        self.setpoints: dict[int, Setpoint] = {}
+        self.pairing = Pairing()
         self.report = RunReport(exit_code=0)
         self.last_heard = time.monotonic()
         self.warn = RateLimitedLog(self.name)
@@ -253,20 +253,16 @@ class _ControllerNode(Node):
         self.last_heard = event.received
         try:
             if event.kind == "state":
-                state = State.decode(event.payload, self.m)
-                self.states[state.step] = state
-                k, again = state.step, state.step <= self.report.last_step
+                due = self.pairing.on_state(State.decode(event.payload, self.m))
             else:
-                sp = Setpoint.decode(event.payload)
-                self.setpoints[sp.step] = sp
-                k, again = sp.step, False
+                due = self.pairing.on_setpoints(Setpoints.decode(event.payload))
         except ProtocolError as exc:
-            self.count(f"bad_{event.kind}s")
-            self.warn(f"bad_{event.kind}", f"dropped a bad {event.kind} message: {exc}")
+            what = "states" if event.kind == "state" else "setpoints"
+            self.count(f"bad_{what}")
+            self.warn(f"bad_{what}", f"dropped a bad {event.kind} message: {exc}")
             return
-        state_k, setpoint_k = self.states.get(k), self.setpoints.get(k)
-        if state_k is not None and setpoint_k is not None and (k > self.report.last_step or again):
-            self.answer(state_k, setpoint_k)
+        if due is not None:
+            self.answer(*due)
 
     def answer(self, state: State, setpoint: Setpoint) -> None:
         result = self.ctrl.step(state, setpoint)
@@ -285,9 +281,7 @@ class _ControllerNode(Node):
         r.first_answer = now if r.first_answer is None else r.first_answer
         r.last_answer = now
         r.last_step = max(r.last_step, state.step)
-        for book in (self.states, self.setpoints):
-            for k in [k for k in book if k < state.step]:
-                del book[k]
+        self.pairing.done(state.step)
 
     def idle(self, now: float) -> None:
         if self.idle_timeout is not None and now - self.last_heard > self.idle_timeout:

@@ -14,9 +14,14 @@ import argparse
 import math
 import sys
 from collections.abc import Sequence
-from typing import NoReturn
+from typing import TYPE_CHECKING, NoReturn
 
 from cdpr.errors import InputError
+
+if TYPE_CHECKING:
+    from cdpr.config.scenario import Scenario
+    from cdpr.protocol import Keys
+    from cdpr.runtime.service import Node
 
 
 def add_zenoh_arguments(parser: argparse.ArgumentParser) -> None:
@@ -49,6 +54,15 @@ def parser_for(name: str) -> argparse.ArgumentParser:
     return parser
 
 
+def build_node(name: str, scenario: Scenario, keys: Keys, argv: Sequence[str]) -> Node:
+    """Node ``name`` for ``scenario`` from its command-line options ``argv`` (the scenario argument
+    first, as for ``python -m cdpr_<name>``): how the in-process composition makes its nodes."""
+    from cdpr.runtime.registry import node_class
+
+    args = parser_for(name).parse_args(list(argv))
+    return node_class(name).from_args(scenario, keys, args)
+
+
 def _fail(message: str) -> NoReturn:
     print(f"cdpr: error: {message}", file=sys.stderr)
     sys.exit(2)
@@ -68,13 +82,14 @@ def node_main(name: str, argv: Sequence[str] | None = None) -> NoReturn:
 
         if args.duration is not None and not (math.isfinite(args.duration) and args.duration > 0):
             raise InputError(f"--duration: must be a positive number of seconds, got {args.duration}")
-        scenario = load_scenario(args.scenario, {"duration": args.duration})
+        cls = node_class(name)
+        scenario = load_scenario(args.scenario, {"duration": args.duration}, checks=cls.scenario_checks)
         try:
             keys = Keys(args.session_id)
         except ValueError as exc:
             raise InputError(f"--session: {exc}") from None
         conf = zenoh_config(args.zenoh_mode, args.connect, args.listen, args.zenoh_config, args.connect_timeout)
-        node = node_class(name).from_args(scenario, keys, args)
+        node = cls.from_args(scenario, keys, args)
         if args.rt_priority is not None:
             set_realtime_priority(args.rt_priority)  # before Zenoh's threads exist: they inherit it
     except InputError as exc:

@@ -23,6 +23,7 @@ from __future__ import annotations
 import argparse
 import faulthandler
 import gc
+import math
 import os
 import signal
 import threading
@@ -54,6 +55,8 @@ class Node:
     # name as their kind; publishers wait in ``self.publishers[topic]``.
     subscribes: tuple[str, ...] = ()
     publishes: tuple[str, ...] = ()
+    # What this node checks of its scenario when it loads it (cdpr.config.scenario.load_scenario).
+    scenario_checks: tuple[str, ...] = ()
 
     def __init__(self, keys: Keys) -> None:
         self.keys = keys
@@ -265,16 +268,8 @@ def declare_topics(node: Node, session: zenoh.Session, inbox: Inbox) -> list[Any
     return keep
 
 
-def serve(node: Node, conf: zenoh.Config, stop: StopFlag | None = None) -> int:
-    """Run ``node`` until it is done; return the process exit code (0 ok, 1 failure, 130/143 signal)."""
-    stop = stop or StopFlag().install()
-    faulthandler.register(signal.SIGUSR1, all_threads=True)  # SIGUSR1: every thread's stack on stderr
-    parent = int(os.environ[PARENT_ENV]) if os.environ.get(PARENT_ENV, "").isdigit() else None
-    try:
-        session = open_session(conf, node.name)
-    except InputError as exc:
-        log(node.name, str(exc))
-        return 2
+def _event_handler(node: Node) -> Callable[[Event], None]:
+    """The node's handler: ``clock/status`` decoded for :meth:`Node.on_status`, the rest to :meth:`Node.handle`."""
 
     def on_event(event: Event) -> None:
         if event.kind == "status":
@@ -286,44 +281,84 @@ def serve(node: Node, conf: zenoh.Config, stop: StopFlag | None = None) -> int:
         else:
             node.handle(event)
 
+    return on_event
+
+
+class _Host:
+    """One node on an open session: its topics, its stats publisher and liveliness token, its chores."""
+
+    def __init__(self, node: Node, session: zenoh.Session, inbox: Inbox, parent: int | None) -> None:
+        self.node, self.parent = node, parent
+        self.keep = declare_topics(node, session, inbox)
+        self.stats_pub = session.declare_publisher(node.keys.stats(node.name))
+        self.token = session.liveliness().declare_token(node.keys.alive(node.name))
+        self.published: dict[str, int] = {}
+        self.last_stats = time.monotonic()
+
+    def publish_stats(self) -> None:
+        self.last_stats = time.monotonic()
+        if self.node.counters != self.published:
+            self.published = dict(self.node.counters)
+            self.stats_pub.put(ServiceStats(self.node.name, self.published).encode())
+
+    def chores(self) -> None:
+        """Once per turn of the main loop: the node's idle hook, the stats, the parent's check."""
+        node, now = self.node, time.monotonic()
+        node.idle(now)
+        if now - self.last_stats >= 1.0:
+            self.publish_stats()
+        if not _parent_alive(self.parent):
+            log(node.name, "the process that launched this service is gone; stopping")
+            node.done = True
+
+    def close(self) -> None:
+        self.node.close()
+        self.publish_stats()
+        self.token.undeclare()
+        self.stats_pub.undeclare()
+        for entity in reversed(self.keep):  # the node's extras (declared last) before what they hang on
+            undeclare = getattr(entity, "undeclare", None)
+            if undeclare is not None:
+                undeclare()
+
+
+def _freeze() -> None:
+    """Everything made so far (modules, the nodes, their models) lives as long as the process: out of
+    the garbage collector's sight, a full collection no longer scans ~70 000 objects (~30 ms, with the
+    GIL held: a stalled step)."""
+    gc.collect()
+    gc.freeze()
+
+
+def _exit_code(nodes: list[Node], stop: StopFlag) -> int:
+    if stop.signal is not None:
+        return 128 + stop.signal
+    return max((n.exit_code for n in nodes), default=0)
+
+
+def serve(node: Node, conf: zenoh.Config, stop: StopFlag | None = None) -> int:
+    """Run ``node`` until it is done; return the process exit code (0 ok, 1 failure, 130/143 signal)."""
+    stop = stop or StopFlag().install()
+    faulthandler.register(signal.SIGUSR1, all_threads=True)  # SIGUSR1: every thread's stack on stderr
+    parent = int(os.environ[PARENT_ENV]) if os.environ.get(PARENT_ENV, "").isdigit() else None
+    try:
+        session = open_session(conf, node.name)
+    except InputError as exc:
+        log(node.name, str(exc))
+        return 2
+    on_event = _event_handler(node)
     with session:
         wake = threading.Event()
         dispatcher = _Dispatcher(node, on_event, wake, stop) if node.direct else None
         stop.on_set(wake.set)  # a signal wakes the main thread at once
         inbox = Inbox(dispatcher)
-        keep = declare_topics(node, session, inbox)
-        # Everything made so far (modules, the node, its models) lives as long as the process: out of
-        # the garbage collector's sight, a full collection no longer scans ~70 000 objects (~30 ms,
-        # with the GIL held: a stalled step).
-        gc.collect()
-        gc.freeze()
-        stats_pub = session.declare_publisher(node.keys.stats(node.name))
-        token = session.liveliness().declare_token(node.keys.alive(node.name))
-        published: dict[str, int] = {}
-        last_stats = time.monotonic()
-
-        def publish_stats() -> None:
-            nonlocal published, last_stats
-            last_stats = time.monotonic()
-            if node.counters != published:
-                published = dict(node.counters)
-                stats_pub.put(ServiceStats(node.name, published).encode())
-
-        def chores() -> None:
-            """Once per turn of the main loop: the node's idle hook, the stats, the parent's check."""
-            now = time.monotonic()
-            node.idle(now)
-            if now - last_stats >= 1.0:
-                publish_stats()
-            if not _parent_alive(parent):
-                log(node.name, "the process that launched this service is gone; stopping")
-                node.done = True
-
+        host = _Host(node, session, inbox, parent)
+        _freeze()
         try:
             if dispatcher is not None:
                 while not node.done and not stop and dispatcher.error is None:
                     wake.clear()  # before the chores: a wake-up from now on ends the sleep below
-                    timeout = dispatcher.run(chores)
+                    timeout = dispatcher.run(host.chores)
                     if node.done or stop or dispatcher.error is not None:
                         break
                     now = time.monotonic()
@@ -337,18 +372,60 @@ def serve(node: Node, conf: zenoh.Config, stop: StopFlag | None = None) -> int:
                         on_event(event)
                         if node.done or stop:  # a signal must not wait for a backlog to drain
                             break
-                    chores()
+                    host.chores()
         finally:
             if dispatcher is not None:
                 dispatcher.close()
-            node.close()
-            publish_stats()
-            token.undeclare()
-            stats_pub.undeclare()
-            for entity in keep:
-                undeclare = getattr(entity, "undeclare", None)
-                if undeclare is not None:
-                    undeclare()
-    if stop.signal is not None:
-        return 128 + stop.signal
-    return node.exit_code
+            host.close()
+    return _exit_code([node], stop)
+
+
+def serve_composed(nodes: list[Node], session: zenoh.Session, stop: StopFlag | None = None,
+                   on_turn: Callable[[], None] | None = None) -> int:
+    """Run ``nodes`` in this process on one open Zenoh ``session`` until every one is done (ROS 2's
+    composition, Drake's diagram): the same node classes as their own processes, the same topics and
+    messages, delivered by Zenoh within the session (synchronously, on the publishing thread). Every
+    node is handled directly (each by its own dispatcher: a node's handlers never overlap, a node that
+    publishes to itself gets the message after its handler returns). ``on_turn`` runs once per turn of
+    the main loop (the launcher's progress line). The exit code: 128 + signal, else the nodes' worst.
+    """
+    stop = stop or StopFlag().install()
+    wake = threading.Event()
+    stop.on_set(wake.set)
+    runners: list[tuple[Node, _Dispatcher, _Host]] = []
+    closed: set[int] = set()
+
+    def close(i: int) -> None:  # a node that is done leaves at once (its token goes: the clock sees it)
+        if i not in closed:
+            closed.add(i)
+            _, dispatcher, host = runners[i]
+            dispatcher.close()
+            host.close()
+
+    try:
+        for node in nodes:
+            dispatcher = _Dispatcher(node, _event_handler(node), wake, stop)
+            runners.append((node, dispatcher, _Host(node, session, Inbox(dispatcher), None)))
+        _freeze()
+        while not stop:
+            wake.clear()  # before the turn: a wake-up from now on ends the sleep below
+            timeout = math.inf
+            for i, (node, dispatcher, host) in enumerate(runners):
+                if i not in closed:
+                    timeout = min(timeout, dispatcher.run(host.chores))
+                    if dispatcher.error is not None:
+                        raise dispatcher.error
+                    if node.done:
+                        close(i)
+            if on_turn is not None:
+                on_turn()
+            live = [node for i, (node, _, _) in enumerate(runners) if i not in closed]
+            if not live:
+                break
+            idle = min(n.idle_period for n in live)
+            if not any(n.done for n in live):
+                _sleep_until(wake, time.monotonic() + min(timeout, idle), timeout < idle)
+    finally:
+        for i in reversed(range(len(runners))):
+            close(i)
+    return _exit_code(nodes, stop)

@@ -78,6 +78,17 @@ def zenoh_config(
     return conf
 
 
+def isolated_config() -> zenoh.Config:
+    """A Zenoh peer that neither listens, connects nor scouts: a session private to this process (the
+    in-process composition of ``cdpr run --in-process``)."""
+    conf = zenoh.Config()
+    conf.insert_json5("mode", json.dumps("peer"))
+    conf.insert_json5("listen/endpoints", "[]")
+    conf.insert_json5("scouting/multicast/enabled", "false")
+    conf.insert_json5("scouting/gossip/enabled", "false")
+    return conf
+
+
 # Zenoh's thread pools for a cdpr process (unless $ZENOH_RUNTIME says otherwise): one worker thread
 # receives, routes and runs the subscribers' callbacks (rx, and the rarely used acceptor and
 # housekeeping pools, handed over to it), one transmits. Zenoh's default (two rx workers, plus app,

@@ -30,9 +30,18 @@ import zenoh
 
 from cdpr.config.scenario import Scenario
 from cdpr.errors import InputError
-from cdpr.protocol import Command, Keys, ProtocolError, ServiceStats, Setpoint, State, Status
-from cdpr.runtime.service import PARENT_ENV, set_realtime_priority
-from cdpr.runtime.transport import Inbox, StopFlag, log, open_session, pin_thread_state, zenoh_config
+from cdpr.protocol import Keys, ProtocolError, ServiceStats, Setpoints, Status, Telemetry
+from cdpr.runtime.main import build_node
+from cdpr.runtime.service import PARENT_ENV, serve_composed, set_realtime_priority
+from cdpr.runtime.transport import (
+    Inbox,
+    StopFlag,
+    isolated_config,
+    log,
+    open_session,
+    pin_thread_state,
+    zenoh_config,
+)
 from cdpr.tools.metrics import RunMetrics
 
 PEER_LISTEN = "tcp/127.0.0.1:0"  # where a local child listens for its peers: loopback, any free port
@@ -116,6 +125,35 @@ class Tape:
         return session.declare_subscriber(key, zenoh.handlers.Callback(on_sample, indirect=False))
 
 
+class _Monitor:
+    """The launcher's view of the session: the clock's status, the services' stats, the progress line."""
+
+    def __init__(self, inbox: Inbox, total_steps: int, quiet: bool) -> None:
+        self.inbox, self.total_steps, self.quiet = inbox, total_steps, quiet
+        self.final: Status | None = None
+        self.raw: list[tuple[str, bytes]] = []
+        self.last_progress, self.last_step = 0.0, -1
+
+    @property
+    def ended(self) -> bool:
+        return self.final is not None and self.final.state in ("finished", "aborted")
+
+    def poll(self, timeout: float) -> None:
+        for ev in self.inbox.drain(timeout):
+            if ev.kind == "status":
+                with contextlib.suppress(ProtocolError):
+                    self.final = Status.decode(ev.payload)
+            else:
+                self.raw.append((ev.kind, ev.payload))
+        final, now = self.final, time.monotonic()
+        k = final.step if final is not None else 0
+        if not self.quiet and now - self.last_progress >= 1.0 and k != self.last_step:  # no repeats while waiting
+            self.last_progress, self.last_step = now, k
+            n = self.total_steps
+            rate = final.stats.get("rate", 0.0) if final is not None else 0.0
+            log("cdpr", f"step {max(k, 0)}/{n} ({100.0 * max(k, 0) / n:.0f} %), {rate:.0f} steps/s")
+
+
 def run_session(
     scenario: Scenario,
     session_id: str = "default",
@@ -129,11 +167,20 @@ def run_session(
     listen: tuple[str, ...] = (),
     join_timeout: float | None = None,
     rt_priority: int | None = None,
+    in_process: bool = False,
 ) -> int:
+    """Run a session of ``scenario`` to its end; print (and write to ``summary``) its JSON summary.
+
+    Multi-process (the default): every node a child process. ``in_process``: every node in this
+    process on one private Zenoh session (:func:`cdpr.runtime.service.serve_composed`), the same
+    node classes and messages; no remote participant can join it.
+    """
     try:
         keys = Keys(session_id)
     except ValueError as exc:
         raise InputError(f"--session: {exc}") from None
+    if in_process and (without or listen):
+        raise InputError("--in-process: every node runs in this process; --without/--listen need processes")
     remote = bool(without)
     listen_eps = list(listen) or ([f"tcp/127.0.0.1:{7447 if remote else free_port()}"])
     local = local_endpoint(listen_eps[0])
@@ -142,96 +189,97 @@ def run_session(
     if rt_priority is not None:
         # the session's router (this process); each loop service sets its own (--rt-priority below),
         # the recorder keeps the normal scheduling (it writes in bursts: no CPU to take from the loop)
-        set_realtime_priority(rt_priority, inherited=False)
+        set_realtime_priority(rt_priority, inherited=in_process)
     stop = StopFlag().install()
-    conf = zenoh_config("router", listen=listen_eps)
+    conf = isolated_config() if in_process else zenoh_config("router", listen=listen_eps)
     metrics = RunMetrics()
-    raw: list[tuple[str, bytes]] = []
     faults: dict[str, dict[str, int]] = {}
     m = scenario.robot.m
-    final: Status | None = None
     children = Children()
     started = time.monotonic()
     exit_ok = False
+    # Every node's command line, once (the in-process composition parses the same options).
+    # All on this machine: the children are peers, linked to each other directly on loopback (a
+    # message takes one hop instead of two through the router, which the launcher's process would
+    # have to forward); the router then only introduces them and serves the monitor. With remote
+    # participants, every service is a client of the router, as the remote ones are.
+    mode_args = ["--zenoh-mode", "client"] if remote else ["--zenoh-mode", "peer", "--listen", PEER_LISTEN]
+    common = [scenario.source, "--session", session_id, "--duration", repr(scenario.duration),
+              *mode_args, "--connect", local]
+    loop = [*common, "--rt-priority", str(rt_priority)] if rt_priority is not None and not in_process else common
+    argv = {"clock": [*loop, "--mode", mode, "--expect", ",".join(expected)]}
+    argv.update({name: loop for name in ("sim", "trajectory", "controller") if name not in without})
+    if recording:
+        rec = [*common]
+        if rrd:
+            Path(rrd).parent.mkdir(parents=True, exist_ok=True)
+            rec += ["--rrd", rrd]
+        if spawn:
+            rec += ["--spawn"]
+        if connect_viewer:
+            rec += ["--connect-viewer", connect_viewer]
+        argv["recorder"] = rec
     with open_session(conf, "cdpr run") as session:
         inbox = Inbox()
         tape = Tape()
         subs = [
-            tape.subscribe(session, keys.state, "state"),
-            tape.subscribe(session, keys.setpoint, "setpoint"),
-            tape.subscribe(session, keys.command, "command"),
+            tape.subscribe(session, keys.telemetry, "telemetry"),
+            tape.subscribe(session, keys.setpoints, "setpoints"),
             inbox.subscribe(session, keys.status, "status"),
             inbox.subscribe(session, keys.stats_all, "stats"),
         ]
-        # What the launcher made so far lives as long as the run: out of the garbage collector's sight
-        # (a full collection would otherwise scan it all, holding the GIL the tape's callbacks need).
-        gc.collect()
-        gc.freeze()
-        # All on this machine: the children are peers, linked to each other directly on loopback (a
-        # message takes one hop instead of two through the router, which the launcher's process would
-        # have to forward); the router then only introduces them and serves the monitor. With remote
-        # participants, every service is a client of the router, as the remote ones are.
-        mode_args = ["--zenoh-mode", "client"] if remote else ["--zenoh-mode", "peer", "--listen", PEER_LISTEN]
-        common = [scenario.source, "--session", session_id, "--duration", repr(scenario.duration),
-                  *mode_args, "--connect", local]
-        loop = [*common, "--rt-priority", str(rt_priority)] if rt_priority is not None else common
-        try:
-            if remote:
-                log("cdpr", f"waiting for {', '.join(without)} to join session {session_id!r} "
-                    f"at {', '.join(listen_eps)}")
-            children.start("clock", [*loop, "--mode", mode, "--expect", ",".join(expected)])
-            for name in ("sim", "trajectory", "controller"):
-                if name not in without:
-                    children.start(name, loop)
-            if recording:
-                rec = [*common]
-                if rrd:
-                    Path(rrd).parent.mkdir(parents=True, exist_ok=True)
-                    rec += ["--rrd", rrd]
-                if spawn:
-                    rec += ["--spawn"]
-                if connect_viewer:
-                    rec += ["--connect-viewer", connect_viewer]
-                children.start("recorder", rec)
-            last_progress = 0.0
-            while not stop:
-                for ev in inbox.drain(0.2):
-                    if ev.kind == "status":
-                        with contextlib.suppress(ProtocolError):
-                            final = Status.decode(ev.payload)
-                    else:
-                        raw.append((ev.kind, ev.payload))
-                if final is not None and final.state in ("finished", "aborted"):
-                    exit_ok = final.state == "finished"
-                    break
-                if failed := children.failed():
-                    log("cdpr", "stopping: " + ", ".join(f"{n} exited with code {c}" for n, c in failed))
-                    break
-                now = time.monotonic()
-                joined = final is not None and final.state != "waiting"
-                if join_timeout is not None and not joined and now - started > join_timeout:
-                    log("cdpr", f"stopping: participants did not join within {join_timeout:g} s")
-                    break
-                if not quiet and now - last_progress >= 1.0:
-                    last_progress = now
-                    k = final.step if final is not None else 0
-                    n = scenario.total_steps
-                    rate = final.stats.get("rate", 0.0) if final is not None else 0.0
-                    log("cdpr", f"step {max(k, 0)}/{n} ({100.0 * max(k, 0) / n:.0f} %), {rate:.0f} steps/s")
-        finally:
-            # After a normal end the services leave by themselves; otherwise they are told to.
-            codes = children.stop(wait_first=FINISH_GRACE if exit_ok else 0.0)
-            raw.extend((ev.kind, ev.payload) for ev in inbox.drain(0.05))  # the services' last words
-            for s in subs:
-                s.undeclare()
+        monitor = _Monitor(inbox, scenario.total_steps, quiet)
+        if in_process:
+            nodes = [build_node(name, scenario, keys, args) for name, args in argv.items()]
+            try:
+                code = serve_composed(nodes, session, stop, on_turn=lambda: monitor.poll(0.0))
+            finally:
+                monitor.poll(0.0)
+                for s in subs:
+                    s.undeclare()
+            codes = {"in-process": code}
+            exit_ok = code == 0 and monitor.final is not None and monitor.final.state == "finished"
+        else:
+            # What the launcher made so far lives as long as the run: out of the garbage collector's sight
+            # (a full collection would otherwise scan it all, holding the GIL the tape's callbacks need).
+            gc.collect()
+            gc.freeze()
+            try:
+                if remote:
+                    log("cdpr", f"waiting for {', '.join(without)} to join session {session_id!r} "
+                        f"at {', '.join(listen_eps)}")
+                for name, args in argv.items():
+                    children.start(name, args)
+                while not stop:
+                    monitor.poll(0.2)
+                    if monitor.ended:
+                        exit_ok = monitor.final is not None and monitor.final.state == "finished"
+                        break
+                    if failed := children.failed():
+                        log("cdpr", "stopping: " + ", ".join(f"{n} exited with code {c}" for n, c in failed))
+                        break
+                    joined = monitor.final is not None and monitor.final.state != "waiting"
+                    if join_timeout is not None and not joined and time.monotonic() - started > join_timeout:
+                        log("cdpr", f"stopping: participants did not join within {join_timeout:g} s")
+                        break
+            finally:
+                # After a normal end the services leave by themselves; otherwise they are told to.
+                codes = children.stop(wait_first=FINISH_GRACE if exit_ok else 0.0)
+                monitor.raw.extend((ev.kind, ev.payload) for ev in inbox.drain(0.05))  # the services' last words
+                for s in subs:
+                    s.undeclare()
+    final, raw = monitor.final, monitor.raw
     for kind, payload in itertools.chain(tape.items, raw):
         try:
-            if kind == "state":
-                metrics.add_state(State.decode(payload, m), payload)
-            elif kind == "setpoint":
-                metrics.add_setpoint(Setpoint.decode(payload))
-            elif kind == "command":
-                metrics.add_command(Command.decode(payload, m))
+            if kind == "telemetry":
+                block = Telemetry.decode(payload, m)
+                for state in block.states:
+                    metrics.add_state(state)
+                for cmd in block.commands:
+                    metrics.add_command(cmd)
+            elif kind == "setpoints":
+                for sp in Setpoints.decode(payload).items:
+                    metrics.add_setpoint(sp)
             elif kind == "stats":
                 stats_msg = ServiceStats.decode(payload)
                 faults[stats_msg.service] = stats_msg.counters
@@ -245,6 +293,7 @@ def run_session(
         "scenario": scenario.name,
         "session": session_id,
         "mode": mode,
+        "in_process": in_process,
         "steps": metrics.last_step if metrics.last_step >= 0 else 0,
         "total_steps": scenario.total_steps,
         "sim_time": max(metrics.last_step, 0) * scenario.dt,

@@ -24,16 +24,20 @@ class RunMetrics:
     setpoints: dict[int, Setpoint] = field(default_factory=dict)
     infeasible_commands: int = 0
     commands: int = 0
+    command_steps: set[int] = field(default_factory=set)
 
-    def add_state(self, state: State, payload: bytes) -> None:
+    def add_state(self, state: State) -> None:
         if state.step not in self.states:  # a resent state is the same state
             self.states[state.step] = state
-            self.state_bytes[state.step] = payload
+            self.state_bytes[state.step] = state.encode()  # as the sim put it on sim/state
 
     def add_setpoint(self, sp: Setpoint) -> None:
         self.setpoints.setdefault(sp.step, sp)
 
     def add_command(self, cmd: Command) -> None:
+        if cmd.step in self.command_steps:  # one applied command per step
+            return
+        self.command_steps.add(cmd.step)
         self.commands += 1
         if not cmd.feasible:
             self.infeasible_commands += 1

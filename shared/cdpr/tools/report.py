@@ -159,7 +159,7 @@ def metrics_from(data: RecordingData) -> RunMetrics:
                 tuple(tensions[j].tolist()),
                 int(clamped[j]),
             )
-            metrics.add_state(state, state.encode())
+            metrics.add_state(state)
     desired = data.get(recording.DESIRED_POSITION)
     if len(desired.step):
         try:

@@ -62,11 +62,11 @@ from cdpr.mechanics.tda.base import (
     nearest_admissible,
 )
 from cdpr.mechanics.tda.closed_form import ClosedForm, ImprovedClosedForm
-from cdpr.mechanics.tda.qp import ContinuityQp, MinNormQp
 
 __all__ = [
     "FEASIBLE_STATUSES",
     "METHODS",
+    "METHOD_NAMES",
     "STATUSES",
     "ClosedForm",
     "ContinuityQp",
@@ -80,15 +80,29 @@ __all__ = [
     "nearest_admissible",
 ]
 
-METHODS: dict[str, type[TensionDistributor]] = {
-    cls.name: cls for cls in (MinNormQp, ClosedForm, ImprovedClosedForm, ContinuityQp)
-}
+# The registry by name. The QP methods (and qpsolvers, OSQP, scipy behind them) are imported on first
+# use: a process that only reads a scenario naming its method (the clock, the sim) never loads them.
+METHOD_NAMES: tuple[str, ...] = ("qp", "closed-form", "improved-closed-form", "continuity")
+
+
+def _methods() -> dict[str, type[TensionDistributor]]:
+    from cdpr.mechanics.tda.qp import ContinuityQp, MinNormQp
+
+    return {cls.name: cls for cls in (MinNormQp, ClosedForm, ImprovedClosedForm, ContinuityQp)}
+
+
+def __getattr__(name: str) -> Any:  # PEP 562: METHODS, MinNormQp, ContinuityQp on first use
+    if name == "METHODS":
+        return _methods()
+    if name in ("MinNormQp", "ContinuityQp"):
+        from cdpr.mechanics.tda import qp
+
+        return getattr(qp, name)
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
 
 
 def make_tda(name: str, **options: Any) -> TensionDistributor:
     """A new distributor of the registered method ``name`` built with ``options``."""
-    try:
-        cls = METHODS[name]
-    except KeyError:
-        raise ValueError(f"unknown TDA method {name!r} (known: {', '.join(sorted(METHODS))})") from None
-    return cls(**options)
+    if name not in METHOD_NAMES:
+        raise ValueError(f"unknown TDA method {name!r} (known: {', '.join(sorted(METHOD_NAMES))})")
+    return _methods()[name](**options)

@@ -10,12 +10,10 @@ from __future__ import annotations
 import math
 from abc import ABC, abstractmethod
 from dataclasses import dataclass
-from typing import ClassVar, Literal, cast, get_args
+from typing import Any, ClassVar, Literal, cast, get_args
 
 import numpy as np
 from numpy.typing import ArrayLike
-from scipy.linalg import lapack
-from scipy.optimize import lsq_linear
 
 from cdpr.mechanics.rotation import Array
 
@@ -27,6 +25,18 @@ Reference = Literal["min-norm", "mid-range"]
 FEASIBLE_STATUSES: frozenset[str] = frozenset({"optimal", "suboptimal", "rate_relaxed"})
 
 _EPS = float(np.finfo(float).eps)
+_LAPACK: Any = None
+
+
+def _lapack() -> Any:
+    """scipy.linalg.lapack, imported on first use: importing this module costs no scipy (the clock and the
+    sim load scenarios that name a method without ever solving)."""
+    global _LAPACK
+    if _LAPACK is None:
+        from scipy.linalg import lapack
+
+        _LAPACK = lapack
+    return _LAPACK
 
 
 @dataclass(frozen=True)
@@ -87,6 +97,8 @@ def _as_arrays(
 
 def nearest_admissible(W: Array, w: Array, lb: Array, ub: Array) -> Array:
     """Tensions in [lb, ub] minimising ‖W f − w‖₂ (bounded-variable least squares)."""
+    from scipy.optimize import lsq_linear  # only on the way to an infeasible answer
+
     f = lb.copy()
     free = lb < ub
     if free.any():
@@ -100,7 +112,7 @@ def _gram_factor(A: Array) -> Array | None:
     """The Cholesky factor (lower) of A Aᵀ for a wide A (k×n, k ≤ n), or None when A Aᵀ is singular or
     badly conditioned (cond(A Aᵀ) = cond(A)² above ~1e10). Straight through LAPACK: several times
     faster than numpy's solvers, with their checks, for k ≤ 6."""
-    L, info = lapack.dpotrf(A @ A.T, lower=1, clean=0)
+    L, info = _lapack().dpotrf(A @ A.T, lower=1, clean=0)
     if info != 0:  # not positive definite
         return None
     d = L.diagonal().tolist()
@@ -119,13 +131,13 @@ def _min_norm(A: Array, b: Array) -> Array:
     if r <= c:
         L = _gram_factor(A)
         if L is not None:
-            y, info = lapack.dpotrs(L, b, lower=1)
+            y, info = _lapack().dpotrs(L, b, lower=1)
             if info == 0:
                 return A.T @ y
     else:
         L = _gram_factor(A.T)
         if L is not None:
-            y, info = lapack.dpotrs(L, A.T @ b, lower=1)
+            y, info = _lapack().dpotrs(L, A.T @ b, lower=1)
             if info == 0:
                 return y
     return np.linalg.lstsq(A, b, rcond=None)[0]
@@ -189,13 +201,13 @@ def _refine(alpha: float, q: Array | None, prob: _Problem, w: Array, f0: Array) 
         # With at least as many free cables as rows, the primal (least-norm tensions) and the dual
         # (multipliers) solves share the Gram matrix Wf Wfᵀ: factorised once.
         L = _gram_factor(Wf) if Wf.shape[0] <= Wf.shape[1] else None
-        x = _min_norm(Wf, rhs) if L is None else Wf.T @ lapack.dpotrs(L, rhs, lower=1)[0]
+        x = _min_norm(Wf, rhs) if L is None else Wf.T @ _lapack().dpotrs(L, rhs, lower=1)[0]
         f[free] = x if c is None else c[free] + x
         r = W @ f - w
         if math.sqrt(float(r @ r)) > prob.tol:
             return None  # this active set cannot produce the wrench
         grad = alpha * f if q is None else alpha * f + q
-        lam = _min_norm(Wf.T, grad[free]) if L is None else lapack.dpotrs(L, Wf @ grad[free], lower=1)[0]
+        lam = _min_norm(Wf.T, grad[free]) if L is None else _lapack().dpotrs(L, Wf @ grad[free], lower=1)[0]
         mu = grad - W.T @ lam  # ≥ 0 at lower bounds, ≤ 0 at upper bounds, 0 on free cables
         viol = np.where(free, np.maximum(lb - f, f - ub), -np.inf).tolist()
         wrong = np.where(at_lo & ~pinned, -mu, np.where(at_hi, mu, -np.inf)).tolist()

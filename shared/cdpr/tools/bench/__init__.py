@@ -40,10 +40,12 @@ from typing import Any
 from cdpr.config.scenario import load_scenario
 from cdpr.tools.bench.loops import (
     bench_cables,
-    bench_distributed,
+    bench_loop_variants,
     bench_monolithic,
     bench_realtime,
     bench_sessions,
+    bench_startup,
+    count_deliveries,
     monolithic_steps,
     rt_priority_allowed,
 )
@@ -88,7 +90,8 @@ def _dist_version(name: str) -> str | None:
 
 def targets(result: dict[str, Any]) -> dict[str, dict[str, Any]]:
     """The project's performance targets, each with the measured figure and whether it is met."""
-    dist, rt = result["distributed"], result["realtime"]
+    dist, rt, loops = result["distributed"], result["realtime"], result["loops"]
+    rec, start = loops["multi_process_recording"], result["startup"]
 
     def target(value: float, met: bool, **extra: Any) -> dict[str, Any]:
         return {"value": value, "met": bool(met), **extra}
@@ -98,6 +101,12 @@ def targets(result: dict[str, Any]) -> dict[str, dict[str, Any]]:
         "distributed/monolithic>=0.6": target(ratio := dist["ratio_to_monolithic"], ratio >= 0.6),
         "realtime_on_time>=0.999": target(rt["on_time_fraction"], rt["on_time_fraction"] >= 0.999,
                                           over_s=rt["duration_s"]),
+        "recording/monolithic>=0.5": target(r := rec["ratio_to_monolithic"], r >= 0.5),
+        "recording_cost<=0.15": target(c := loops["recording_cost"], c <= 0.15),
+        "in_process/monolithic>=0.8": target(i := loops["in_process"]["ratio_to_monolithic"], i >= 0.8),
+        "deliveries_per_step<=3": target(d := result["deliveries"]["deliveries_per_step"], d <= 3.0),
+        "startup_50_steps_multi_process_s<=1.5": target(s := start["multi_process_s"], s <= 1.5),
+        "startup_50_steps_in_process_s<=1.0": target(s := start["in_process_s"], s <= 1.0),
     }
     if (fifo := rt.get("rt_priority")) is not None:
         out["realtime_on_time_rt_priority>=0.999"] = target(
@@ -128,13 +137,19 @@ def run_bench(plan: BenchPlan, scenario: str = "caroca_15kg", out: Path | None =
 
     def part(name: str, message: str) -> None:
         load[name] = os.getloadavg()[0]
-        log(f"{len(load)}/6 {message}")
+        log(f"{len(load)}/7 {message}")
 
     part("monolithic", f"monolithic loop ({plan.mono_steps} steps x {plan.mono_repeats})")
     result["monolithic"] = bench_monolithic(sc, plan.mono_steps, plan.mono_repeats)
-    part("distributed", f"distributed loop (cdpr run {scenario} x {plan.loop_repeats})")
-    result["distributed"] = bench_distributed(scenario, plan.loop_duration, plan.loop_repeats,
-                                              result["monolithic"]["steps_per_s"])
+    part("distributed", f"distributed loop: multi-process, recording, in-process (x {plan.loop_repeats})")
+    loops = bench_loop_variants(scenario, plan.loop_duration, plan.loop_repeats, result["monolithic"]["steps_per_s"])
+    loops["recording_cost"] = 1.0 - loops["multi_process_recording"]["steps_per_s"] / loops["multi_process"][
+        "steps_per_s"]
+    result["loops"] = loops
+    result["distributed"] = loops["multi_process"]
+    result["deliveries"] = count_deliveries(sc, plan.mono_steps)
+    part("startup", f"start-up: 50-step sessions (x {plan.startup_repeats})")
+    result["startup"] = bench_startup(scenario, plan.startup_repeats)
     part("zenoh_rtt", f"Zenoh round trip ({plan.rtt_count})")
     result["zenoh_rtt"] = bench_zenoh_rtt(plan.rtt_count)
     part("realtime", f"realtime mode ({plan.realtime_duration:g} s)")
@@ -167,14 +182,24 @@ def _fmt(x: Any, digits: int = 0) -> str:
 def table(r: dict[str, Any]) -> str:
     """The results as a plain-text table (what `cdpr bench` prints)."""
     mono, dist, rtt, rt, mach = r["monolithic"], r["distributed"], r["zenoh_rtt"], r["realtime"], r["machine"]
+    loops = r["loops"]
     rows: list[tuple[str, str]] = [
         ("1 monolithic loop, steps/s", _fmt(mono["steps_per_s"])),
         *((f"    {k}, us/step", _fmt(v, 1)) for k, v in mono["us_per_step"].items()),
-        ("2 distributed loop (fast), steps/s", _fmt(dist["steps_per_s"])),
+        ("2 distributed loop (fast, multi-process), steps/s", _fmt(dist["steps_per_s"])),
         ("    RTF", _fmt(dist["rtf"], 2)),
         ("    ratio to the monolithic loop", _fmt(dist["ratio_to_monolithic"], 2)),
         ("    CPU of all processes, us/step", _fmt(dist["cpu_us_per_step"])),
         *((f"      {k}", _fmt(v)) for k, v in dist["cpu_us_per_step_by_process"].items()),
+        ("  with the recorder writing an .rrd, steps/s", _fmt(loops["multi_process_recording"]["steps_per_s"])),
+        ("    ratio to the monolithic loop", _fmt(loops["multi_process_recording"]["ratio_to_monolithic"], 2)),
+        ("    cost of recording (throughput lost)", f"{100 * loops['recording_cost']:.1f} %"),
+        ("  in-process composition (--in-process), steps/s", _fmt(loops["in_process"]["steps_per_s"])),
+        ("    ratio to the monolithic loop", _fmt(loops["in_process"]["ratio_to_monolithic"], 2)),
+        ("  messages delivered per step (fast mode)", _fmt(r["deliveries"]["deliveries_per_step"], 2)),
+        *((f"    {k}", _fmt(v["deliveries_per_step"], 3)) for k, v in r["deliveries"]["topics"].items()),
+        ("  50-step session, whole command: multi-process, s", _fmt(r["startup"]["multi_process_s"], 2)),
+        ("    in-process, s", _fmt(r["startup"]["in_process_s"], 2)),
         ("3 Zenoh round trip, clients through the router, median us", _fmt(rtt["median_us"], 1)),
         ("    p99 us", _fmt(rtt["p99_us"], 1)),
         ("    one message (half), us", _fmt(rtt["one_way_us"], 1)),

@@ -19,7 +19,7 @@ from typing import IO, Any
 import numpy as np
 import yaml
 
-from cdpr.config.scenario import Scenario
+from cdpr.config.scenario import Scenario, load_scenario
 from cdpr.protocol import Command, Setpoint, State, Tick
 from cdpr.tools.bench.robots import robot_spec, scenario_yaml
 
@@ -199,11 +199,36 @@ def _run_sessions(args_list: Sequence[Sequence[str]], tag: str, timeout: float) 
     return results
 
 
+LOOP_VARIANTS: dict[str, tuple[str, ...]] = {
+    "multi_process": (),  # every node its own process, no recording
+    "multi_process_recording": ("--rrd", "{tmp}/bench.rrd"),  # and the recorder writing an .rrd
+    "in_process": ("--in-process",),  # every node in one process (composition), no recording
+}
+
+
+def bench_loop_variants(scenario: str, duration: float | None, repeats: int, monolithic: float) -> dict[str, Any]:
+    """The distributed loop in each of :data:`LOOP_VARIANTS`, interleaved (A B C A B C …) so that a
+    change in the machine's load hits every variant alike; each with its ratio to the monolithic loop."""
+    extra = [] if duration is None else ["--duration", repr(duration)]
+    runs: dict[str, list[dict[str, Any]]] = {name: [] for name in LOOP_VARIANTS}
+    with tempfile.TemporaryDirectory(prefix="cdpr-bench-") as tmp:
+        for _ in range(repeats):
+            for name, args in LOOP_VARIANTS.items():
+                argv = [scenario, *extra, *(a.format(tmp=tmp) for a in args)]
+                runs[name].append(_run_sessions([argv], name.replace("_", ""), 900.0)[0])
+    return {name: _loop_result(r, monolithic) for name, r in runs.items()}
+
+
 def bench_distributed(
     scenario: str, duration: float | None, repeats: int, monolithic: float
 ) -> dict[str, Any]:
     extra = [] if duration is None else ["--duration", repr(duration)]
     runs = [_run_sessions([[scenario, *extra]], "loop", 900.0)[0] for _ in range(repeats)]
+    return _loop_result(runs, monolithic)
+
+
+def _loop_result(runs: list[dict[str, Any]], monolithic: float) -> dict[str, Any]:
+    repeats = len(runs)
     rate = statistics.median(r["rate"] for r in runs)
     cpu = [r["cpu_us_per_step"] for r in runs if r["cpu_us_per_step"] is not None]
     by_process: dict[str, list[float]] = {}
@@ -221,6 +246,68 @@ def bench_distributed(
         "cpu_us_per_step_by_process": {k: statistics.median(v) for k, v in by_process.items()},
         "state_digest": runs[0]["state_digest"],
     }
+
+
+def bench_startup(scenario: str, repeats: int, steps: int = 50) -> dict[str, Any]:
+    """Wall time of a whole ``cdpr run SCENARIO --duration steps·dt`` command, from the command's start
+    to its exit, multi-process and in-process (median of ``repeats``, interleaved)."""
+    duration = repr(steps * load_scenario(scenario).dt)
+    walls: dict[str, list[float]] = {"multi_process": [], "in_process": []}
+    for _ in range(repeats):
+        for name, args in (("multi_process", []), ("in_process", ["--in-process"])):
+            started = time.perf_counter()
+            proc = subprocess.run([sys.executable, "-m", "cdpr", "run", scenario, "--duration", duration, "--quiet",
+                                   "--session", f"benchstart-{uuid.uuid4().hex[:6]}", *args],
+                                  capture_output=True, text=True, timeout=120, check=False)
+            walls[name].append(time.perf_counter() - started)
+            if proc.returncode != 0:
+                raise RuntimeError(f"cdpr run --duration {duration} {' '.join(args)} failed: {proc.stderr[-500:]}")
+    return {"steps": steps, "repeats": repeats,
+            **{f"{k}_s": statistics.median(v) for k, v in walls.items()},
+            **{f"{k}_runs_s": v for k, v in walls.items()}}
+
+
+def count_deliveries(scenario: Scenario, steps: int) -> dict[str, Any]:
+    """Messages per step and topic in fast mode, and the deliveries they make (one per subscriber, from
+    the wiring table, plus ``cdpr run``'s monitor): a session composed in this process, with one more
+    subscriber on every key of the session that counts what goes by (it is not counted itself)."""
+    from cdpr.protocol import Keys
+    from cdpr.protocol.wiring import TOPICS, subscribers
+    from cdpr.runtime.main import build_node
+    from cdpr.runtime.service import serve_composed
+    from cdpr.runtime.transport import StopFlag, isolated_config, open_session
+
+    keys = Keys(f"benchcount{uuid.uuid4().hex[:6]}")
+    sc = load_scenario(scenario.source, {"duration": steps * scenario.dt})
+    by_key = {f"{keys.prefix}/{t.key.split('/{')[0]}": name for name, t in TOPICS.items()}
+    counts: dict[str, int] = dict.fromkeys(TOPICS, 0)
+    monitor = {"telemetry", "setpoints", "status", "stats"}  # what cdpr run's monitor subscribes to
+
+    def on_sample(sample: Any) -> None:
+        key = str(sample.key_expr)
+        name = by_key.get(key) or by_key.get(key.rsplit("/", 1)[0])
+        if name is not None:
+            counts[name] += 1
+
+    import zenoh
+
+    with open_session(isolated_config(), "bench") as session:
+        sub = session.declare_subscriber(f"{keys.prefix}/**", zenoh.handlers.Callback(on_sample, indirect=False))
+        argv = [sc.source, "--duration", repr(sc.duration)]
+        nodes = [build_node("clock", sc, keys, [*argv, "--expect", "sim,trajectory,controller"])]
+        nodes += [build_node(name, sc, keys, argv) for name in ("sim", "trajectory", "controller")]
+        code = serve_composed(nodes, session, StopFlag())
+        sub.undeclare()
+    if code != 0:
+        raise RuntimeError(f"the counting session ended with code {code}")
+    n = sc.total_steps
+    per_topic = {name: {"messages_per_step": c / n,
+                        "deliveries_per_step": c * (len(subscribers(name)) + (name in monitor)) / n}
+                 for name, c in counts.items() if c}
+    return {"steps": n, "topics": per_topic,
+            "deliveries_per_step": sum(v["deliveries_per_step"] for v in per_topic.values()),
+            "loop_deliveries_per_step": sum(v["deliveries_per_step"] for k, v in per_topic.items()
+                                            if k not in ("status", "stats"))}
 
 
 RT_PRIORITY = 10  # the SCHED_FIFO priority of the second realtime run, when the system allows it

@@ -5,7 +5,7 @@ from __future__ import annotations
 import sys
 from dataclasses import dataclass
 
-BENCH_VERSION = 1
+BENCH_VERSION = 2  # 2: loop variants (recording, in-process), deliveries, start-up
 
 
 @dataclass(frozen=True)
@@ -24,6 +24,7 @@ class BenchPlan:
     session_duration: float
     cable_counts: tuple[int, ...]
     cable_duration: float
+    startup_repeats: int = 3  # 50-step sessions timed as whole commands, per mode
 
 
 FULL = BenchPlan(

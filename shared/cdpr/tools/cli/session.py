@@ -69,6 +69,9 @@ def _run_options(f: Callable[..., Any]) -> Callable[..., Any]:
 @cli.command()
 @_run_options
 @click.option("--quiet", is_flag=True, help="no progress line")
+@click.option("--in-process", is_flag=True,
+              help="every node in this process on one private Zenoh session (composition): same nodes, "
+                   "same messages, no process start-up")
 def run(**kw: Any) -> None:
     """Run SCENARIO end to end: every service as a child process on a private loopback network.
 
