@@ -16,6 +16,7 @@ SCALE = {"m": (1e3, "mm"), "rad": (1e3, "mrad")}  # shown in readable units
 
 def _unit(metric: str) -> tuple[float, str]:
     unit = METRICS[metric].rsplit(", ", 1)[-1] if ", " in METRICS[metric] else ""
+    unit = unit if unit in ("m", "rad", "N", "s") else ""
     factor, shown = SCALE.get(unit, (1.0, unit))
     return factor, shown
 
