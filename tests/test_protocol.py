@@ -199,3 +199,9 @@ def test_session_ids_are_checked() -> None:
     for bad in ("", "a/b", "x*", "a" * 65, "white space"):
         with pytest.raises(ValueError, match="session id"):
             Keys(bad)
+
+
+def test_every_fault_counter_of_a_subscribed_topic_is_documented() -> None:
+    for name, topic in TOPICS.items():
+        if wiring.subscribers(name) and topic.bad:
+            assert f"`{topic.bad}`" in DOC, f"{topic.bad} (dropping a bad {name}) missing from docs/protocol.md"

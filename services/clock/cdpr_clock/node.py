@@ -17,10 +17,10 @@ import zenoh
 
 from cdpr.config.scenario import Scenario
 from cdpr.errors import InputError
-from cdpr.protocol import SERVICES, Keys, ProtocolError, ServiceStats, Status, Telemetry, Tick
+from cdpr.protocol import SERVICES, Keys, Status, Tick
 from cdpr.protocol.session import encode_session_info
 from cdpr.runtime.service import Node
-from cdpr.runtime.transport import Event, Inbox, RateLimitedLog, log
+from cdpr.runtime.transport import Event, Inbox, log
 from cdpr_clock.core import ClockCore
 
 LINGER = 2.0  # seconds the clock keeps announcing "finished" while participants leave
@@ -55,7 +55,6 @@ class ClockNode(Node):
         self.reason = ""
         self.finished_at: float | None = None
         self.faults: dict[str, dict[str, int]] = {}  # every service's fault counters (stats/{service})
-        self.warn = RateLimitedLog(self.name)
         self.join_timeout = join_timeout  # seconds for every participant to join (0: no limit)
         self._waiting_since: float | None = None  # the first idle() in state "waiting"
         self._next_wait_log = 0.0
@@ -115,13 +114,8 @@ class ClockNode(Node):
     def handle(self, event: Event) -> None:
         now = time.monotonic()
         if event.kind == "telemetry":
-            try:
-                block = Telemetry.decode(event.payload, self.m)
-            except ProtocolError as exc:
-                self.count("bad_telemetry")
-                self.warn("bad_telemetry", f"dropped a bad sim/telemetry block: {exc}")
-                return
-            if not block.states:
+            block = self.decode(event, self.m)
+            if block is None or not block.states:
                 return
             step = block.states[-1].step
             if step < self.core.reached:
@@ -135,13 +129,8 @@ class ClockNode(Node):
                 self.finish(now)
             return
         if event.kind == "stats":
-            try:
-                stats = ServiceStats.decode(event.payload)
-            except ProtocolError as exc:
-                self.count("bad_stats")
-                self.warn("bad_stats", f"dropped a bad stats message: {exc}")
-                return
-            self.faults[stats.service] = stats.counters
+            if (stats := self.decode(event)) is not None:
+                self.faults[stats.service] = stats.counters
             return
         service = event.key.rsplit("/", 1)[-1]
         if event.kind == "alive":

@@ -14,10 +14,10 @@ import zenoh
 
 from cdpr.config.scenario import Scenario
 from cdpr.mechanics.rotation import matrix_to_quat
-from cdpr.protocol import Command, Keys, ProtocolError, Setpoint, Setpoints, State
+from cdpr.protocol import Command, Keys, Setpoint, State
 from cdpr.protocol.pairing import Pairing
 from cdpr.runtime.service import Node
-from cdpr.runtime.transport import Event, Inbox, RateLimitedLog, log
+from cdpr.runtime.transport import Event, Inbox, log
 from cdpr_controller.core import ControllerCore
 
 
@@ -42,7 +42,6 @@ class ControllerNode(Node):
         self.pairing = Pairing()
         self.answered = -1
         self.infeasible = 0
-        self.warn = RateLimitedLog(self.name)
         self._pub: zenoh.Publisher | None = None
 
     subscribes = ("state", "setpoints")
@@ -54,16 +53,12 @@ class ControllerNode(Node):
         return []
 
     def handle(self, event: Event) -> None:
-        try:
-            if event.kind == "state":
-                due = self.pairing.on_state(State.decode(event.payload, self.m))
-            else:
-                due = self.pairing.on_setpoints(Setpoints.decode(event.payload))
-        except ProtocolError as exc:
-            what = "states" if event.kind == "state" else "setpoints"
-            self.count(f"bad_{what}")
-            self.warn(f"bad_{what}", f"dropped a bad {event.kind} message: {exc}")
-            return
+        if event.kind == "state":
+            state = self.decode(event, self.m)
+            due = None if state is None else self.pairing.on_state(state)
+        else:
+            block = self.decode(event)
+            due = None if block is None else self.pairing.on_setpoints(block)
         if due is not None:
             self.answer(*due)
 

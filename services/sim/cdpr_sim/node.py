@@ -18,9 +18,9 @@ import numpy as np
 import zenoh
 
 from cdpr.config.scenario import Scenario
-from cdpr.protocol import Command, Keys, ProtocolError, Sensors, State, Telemetry, Tick
+from cdpr.protocol import Command, Keys, Sensors, State, Telemetry, Tick
 from cdpr.runtime.service import Node
-from cdpr.runtime.transport import Event, Inbox, RateLimitedLog, log
+from cdpr.runtime.transport import Event, Inbox, log
 from cdpr_sim.core import make_sim, state_message
 from cdpr_sim.sensors import SensorConfig, SensorSuite
 
@@ -47,7 +47,6 @@ class SimNode(Node):
         self.pending: Command | None = None  # a valid command for the current step, waiting for its tick
         self.clamped = 0
         self.last_command: Command | None = None  # the command of the last step taken
-        self.warn = RateLimitedLog(self.name)
         self._pub: zenoh.Publisher | None = None
         self.command_kind = scenario.output  # "tensions" or "lengths": the commands this sim takes
         sensors = scenario.spec.sim.sensors
@@ -77,20 +76,9 @@ class SimNode(Node):
 
     def handle(self, event: Event) -> None:
         if event.kind == "tick":
-            try:
-                tick = Tick.decode(event.payload)
-            except ProtocolError as exc:
-                self.count("bad_ticks")
-                self.warn("bad_tick", f"dropped a bad clock/tick: {exc}")
-                return
-            self.on_tick(tick)
-        elif event.kind == "command":
-            try:
-                cmd = Command.decode(event.payload, self.m, self.command_kind)
-            except ProtocolError as exc:
-                self.count("bad_commands")
-                self.warn("bad_command", f"dropped a bad controller/command: {exc}")
-                return
+            if (tick := self.decode(event)) is not None:
+                self.on_tick(tick)
+        elif (cmd := self.decode(event, self.m, self.command_kind)) is not None:
             self.on_command(cmd)
 
     # -- the step logic ---------------------------------------------------------------------------
@@ -168,6 +156,11 @@ class SimNode(Node):
             self.pending = cmd  # the controller was quicker than the tick: wait for the clock
             return
         report = self.sim.step(np.asarray(cmd.values))
+        if getattr(self.sim, "fallbacks", 0) > self.counters.get("cable_fallbacks", 0):  # the cable law fell back
+            self.count("cable_fallbacks")
+            if self.counters["cable_fallbacks"] == 1:
+                log(self.name, f"step {cmd.step}: the cable model fell back: {self.sim.fallback_reason} "
+                    "(such steps are counted in cable_fallbacks; logged once)")
         self.last_command = cmd
         self.block_commands.append(cmd)
         self.block_lags.append(time.monotonic() - self.published_at)

@@ -15,9 +15,9 @@ from typing import Any
 import zenoh
 
 from cdpr.config.scenario import Scenario
-from cdpr.protocol import Keys, ProtocolError, Setpoint, Setpoints, Tick
+from cdpr.protocol import Keys, Setpoint, Setpoints
 from cdpr.runtime.service import Node
-from cdpr.runtime.transport import Event, Inbox, RateLimitedLog
+from cdpr.runtime.transport import Event, Inbox
 from cdpr_trajectory.core import setpoint_at
 
 AHEAD = 100  # setpoints published beyond the last granted step
@@ -38,7 +38,6 @@ class TrajectoryNode(Node):
         self.dt = scenario.dt
         self.last_step = scenario.total_steps - 1
         self.published = -1  # the last setpoint published
-        self.warn = RateLimitedLog(self.name)
         self._pub: zenoh.Publisher | None = None
 
     subscribes = ("tick",)
@@ -49,11 +48,8 @@ class TrajectoryNode(Node):
         return []
 
     def handle(self, event: Event) -> None:
-        try:
-            tick = Tick.decode(event.payload)
-        except ProtocolError as exc:
-            self.count("bad_ticks")
-            self.warn("bad_tick", f"dropped a bad clock/tick: {exc}")
+        tick = self.decode(event)
+        if tick is None:
             return
         if tick.resend:
             self.publish(tick.step, self.published)

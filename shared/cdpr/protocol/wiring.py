@@ -19,19 +19,20 @@ class Topic:
 
     key: str
     message: str  # the class in cdpr.protocol that encodes and decodes it
+    bad: str = ""  # the fault counter of a receiver that drops a bad one (docs/protocol.md, "Bad input")
     kind: str = "pubsub"  # "pubsub", "queryable" (answered to a `get`) or "liveliness" (a token)
 
 
 TOPICS: dict[str, Topic] = {
-    "tick": Topic("clock/tick", "Tick"),
-    "status": Topic("clock/status", "Status"),
-    "state": Topic("sim/state", "State"),
-    "setpoints": Topic("trajectory/setpoints", "Setpoints"),
-    "command": Topic("controller/command", "Command"),
-    "telemetry": Topic("sim/telemetry", "Telemetry"),
-    "sensors": Topic("sim/sensors", "Sensors"),
+    "tick": Topic("clock/tick", "Tick", "bad_ticks"),
+    "status": Topic("clock/status", "Status", "bad_status"),
+    "state": Topic("sim/state", "State", "bad_states"),
+    "setpoints": Topic("trajectory/setpoints", "Setpoints", "bad_setpoints"),
+    "command": Topic("controller/command", "Command", "bad_commands"),
+    "telemetry": Topic("sim/telemetry", "Telemetry", "bad_telemetry"),
+    "sensors": Topic("sim/sensors", "Sensors", "bad_sensors"),
     "info": Topic("session/info", "SessionInfo", kind="queryable"),
-    "stats": Topic("stats/{node}", "ServiceStats"),
+    "stats": Topic("stats/{node}", "ServiceStats", "bad_stats"),
     "alive": Topic("alive/{node}", "", kind="liveliness"),
 }
 

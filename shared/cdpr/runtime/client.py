@@ -43,7 +43,7 @@ import numpy as np
 import zenoh
 
 from cdpr.errors import InputError
-from cdpr.protocol import Command, Keys, ProtocolError, Setpoint, Setpoints, State, Status
+from cdpr.protocol import Command, Keys, Setpoint, State, Status
 from cdpr.protocol.pairing import Pairing
 from cdpr.protocol.session import SessionInfo
 from cdpr.runtime.service import Node, serve
@@ -251,16 +251,12 @@ class _ControllerNode(Node):
 
     def handle(self, event: Event) -> None:
         self.last_heard = event.received
-        try:
-            if event.kind == "state":
-                due = self.pairing.on_state(State.decode(event.payload, self.m))
-            else:
-                due = self.pairing.on_setpoints(Setpoints.decode(event.payload))
-        except ProtocolError as exc:
-            what = "states" if event.kind == "state" else "setpoints"
-            self.count(f"bad_{what}")
-            self.warn(f"bad_{what}", f"dropped a bad {event.kind} message: {exc}")
-            return
+        if event.kind == "state":
+            state = self.decode(event, self.m)
+            due = None if state is None else self.pairing.on_state(state)
+        else:
+            block = self.decode(event)
+            due = None if block is None else self.pairing.on_setpoints(block)
         if due is not None:
             self.answer(*due)
 

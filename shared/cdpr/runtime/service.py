@@ -34,10 +34,11 @@ from typing import TYPE_CHECKING, Any
 
 import zenoh
 
+from cdpr import protocol
 from cdpr.errors import InputError
 from cdpr.protocol import Keys, ProtocolError, ServiceStats, Status
 from cdpr.protocol.wiring import TOPICS, check_node
-from cdpr.runtime.transport import PUBLISH_OPTS, Event, Inbox, StopFlag, log, open_session
+from cdpr.runtime.transport import PUBLISH_OPTS, Event, Inbox, RateLimitedLog, StopFlag, log, open_session
 
 if TYPE_CHECKING:
     from cdpr.config.scenario import Scenario
@@ -65,6 +66,7 @@ class Node:
         self.final_status: Status | None = None
         self.counters: dict[str, int] = {}  # fault counters, published on stats/{name}
         self.publishers: dict[str, zenoh.Publisher] = {}
+        self.warn = RateLimitedLog(self.name)
 
     @classmethod
     def add_arguments(cls, parser: argparse.ArgumentParser) -> None:
@@ -80,6 +82,18 @@ class Node:
         """The node's pure step object for ``scenario``, without Zenoh (the same math in one process:
         ``cdpr bench``'s monolithic loop). Nodes whose work is only messaging have none."""
         raise NotImplementedError(f"the {cls.name} node has no pure core")
+
+    def decode(self, event: Event, *args: Any) -> Any:
+        """The event's message, decoded and checked as its topic says (``cdpr.protocol.wiring.TOPICS``; ``args``
+        go to its ``decode``: the number of cables, …). A payload that fails is counted under the topic's
+        fault counter, logged in one line naming the field (rate-limited), and None is returned."""
+        topic = TOPICS[event.kind]
+        try:
+            return getattr(protocol, topic.message).decode(event.payload, *args)
+        except ProtocolError as exc:
+            self.count(topic.bad)
+            self.warn(topic.bad, f"dropped a bad {topic.key.split('/{')[0]}: {exc}")
+            return None
 
     def count(self, what: str) -> None:
         self.counters[what] = self.counters.get(what, 0) + 1
@@ -273,11 +287,8 @@ def _event_handler(node: Node) -> Callable[[Event], None]:
 
     def on_event(event: Event) -> None:
         if event.kind == "status":
-            try:
-                node.on_status(Status.decode(event.payload))
-            except ProtocolError as exc:
-                node.count("bad_status")
-                log(node.name, f"dropped a bad clock/status message: {exc}")
+            if (status := node.decode(event)) is not None:
+                node.on_status(status)
         else:
             node.handle(event)
 

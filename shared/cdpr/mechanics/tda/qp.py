@@ -1,7 +1,13 @@
-"""The QP methods through ``qpsolvers`` (OSQP by default): ``qp`` (the paper's eq. 8) and ``continuity``."""
+"""The QP methods through ``qpsolvers`` (OSQP by default): ``qp`` (the paper's eq. 8) and ``continuity``.
+
+``qpsolvers`` (and the scipy.sparse it needs) is imported on the first call that needs the solver: an
+exact active-set step (from the previous answer's active set, or from none on the first call, KKT
+checked) solves most problems along a trajectory, so a session often never loads it.
+"""
 
 from __future__ import annotations
 
+import importlib.util
 import math
 import warnings
 from abc import abstractmethod
@@ -9,8 +15,6 @@ from types import MappingProxyType
 from typing import Any, ClassVar, get_args
 
 import numpy as np
-import qpsolvers
-import scipy.sparse as spa
 
 from cdpr.mechanics.rotation import Array
 from cdpr.mechanics.tda.base import Reference, TensionDistributor, _Problem, _refine, nearest_admissible
@@ -19,12 +23,25 @@ from cdpr.mechanics.tda.base import Reference, TensionDistributor, _Problem, _re
 _OSQP_SETTINGS: MappingProxyType[str, Any] = MappingProxyType(
     {"eps_abs": 1e-9, "eps_rel": 1e-9, "polish": True, "max_iter": 20000, "polish_refine_iter": 5}
 )
+# qpsolvers' backend names → the package each needs (checked without importing qpsolvers).
+_SOLVER_PACKAGES = {"osqp": "osqp", "quadprog": "quadprog", "clarabel": "clarabel", "cvxopt": "cvxopt",
+                    "daqp": "daqp", "ecos": "ecos", "highs": "highspy", "piqp": "piqp", "proxqp": "proxsuite",
+                    "qpalm": "qpalm", "scs": "scs", "gurobi": "gurobipy", "mosek": "mosek"}
+
+
+def _solver_installed(solver: str) -> tuple[bool, str]:
+    """(whether qpsolvers' backend ``solver`` can be used, the backends that can) — importing qpsolvers
+    only for a name this module does not know."""
+    package = _SOLVER_PACKAGES.get(solver)
+    if package is not None and importlib.util.find_spec(package) is not None:
+        return True, ""
+    import qpsolvers
+
+    return solver in qpsolvers.available_solvers, ", ".join(qpsolvers.available_solvers)
 
 
 class _QpDistributor(TensionDistributor):
     """Shared machinery of the QP methods: min ½α‖f‖² + qᵀf s.t. W f = w, bounds."""
-
-    solver_errors = (qpsolvers.QPError, *TensionDistributor.solver_errors)
 
     def __init__(
         self,
@@ -40,10 +57,9 @@ class _QpDistributor(TensionDistributor):
         set, the solver's own default tolerances unless ``solver_settings`` says otherwise): the
         typical real-time QP setup, kept to reproduce the paper's tension spikes."""
         super().__init__(atol)
-        if solver not in qpsolvers.available_solvers:
-            raise ValueError(
-                f"QP solver {solver!r} is not installed (available: {', '.join(qpsolvers.available_solvers)})"
-            )
+        installed, available = _solver_installed(solver)
+        if not installed:
+            raise ValueError(f"QP solver {solver!r} is not installed (available: {available})")
         self.solver = solver
         self.exact = exact
         self.warm_active_set = warm_active_set and exact
@@ -63,6 +79,9 @@ class _QpDistributor(TensionDistributor):
         self, alpha: float, q: Array | None, prob: _Problem, lb: Array, ub: Array
     ) -> tuple[Array, str] | None:
         """Solve with the QP solver, then make it exact; None if no admissible answer comes out."""
+        import qpsolvers
+        import scipy.sparse as spa
+
         sub = _Problem(prob.W, prob.w, lb, ub, prob.tol)
         s = sub.bound_scale  # solve for f / s so the solver's absolute tolerances are relative
         m = lb.size
@@ -81,7 +100,7 @@ class _QpDistributor(TensionDistributor):
             warnings.simplefilter("ignore")  # failures are reported through the status instead
             try:
                 solution = qpsolvers.solve_problem(problem, solver=self.solver, initvals=initvals, **settings)
-            except self.solver_errors:
+            except (qpsolvers.QPError, *self.solver_errors):
                 return None
         x = solution.x
         if x is None or np.shape(x) != (m,) or not np.all(np.isfinite(x)):
@@ -103,10 +122,13 @@ class _QpDistributor(TensionDistributor):
         tight = self._rate_bounds(prob)
         self.calls += 1
         prev = self._previous_for(prob.lb.size)
-        if tight is None and prev is not None and self.warm_active_set:
+        if tight is None and self.warm_active_set:
             # Along a trajectory the active set rarely changes: if the previous one still satisfies the
             # KKT conditions (checked exactly by _refine) the QP is solved without calling the solver.
-            exact = _refine(alpha, q, prob, prob.w, prev)
+            # With no previous answer, the same exact step starts from no active bound (the middle of
+            # the box) and moves cables in or out while a KKT condition fails.
+            start = prev if prev is not None else 0.5 * (prob.lb + prob.ub)
+            exact = _refine(alpha, q, prob, prob.w, start)
             if exact is not None:
                 return exact, "optimal"
         self.solver_calls += 1
