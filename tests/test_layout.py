@@ -21,7 +21,8 @@ ALLOWED = {
     "config": {"numpy", "pydantic", "yaml"},
     "protocol": {"numpy", "msgpack"},
     "runtime": {"numpy", "zenoh"},
-    "recording": {"numpy", "rerun", "rerun_cli", "pyarrow"},  # all three come with rerun-sdk
+    "recording": {"numpy", "rerun", "rerun_cli", "pyarrow",  # all three come with rerun-sdk
+                  "foxglove"},  # foxglove-sdk: MCAP files and the live WebSocket server (cdpr.recording.mcap, .live)
 }
 STDLIB = set(sys.stdlib_module_names) | {"__future__"}
 

@@ -1,9 +1,12 @@
-"""The recorder node: a Zenoh shell around :class:`cdpr_recorder.core.RecorderCore`, writing to Rerun.
+"""The recorder node: a Zenoh shell around :class:`cdpr_recorder.core.RecorderCore`, writing to its sinks.
 
 It subscribes to every stream of the session (tick, state, setpoint, command, and status through
-:func:`cdpr.runtime.service.serve`), decodes and buffers the messages, and sends them to Rerun in columns
-(``rr.send_columns``, one call per entity) every ``batch_steps`` states, after a quiet second (so a live
-viewer never lags much), and at the end. Nothing is logged per step, so the loop is not slowed down.
+:func:`cdpr.runtime.service.serve`), decodes and buffers the messages, and cuts them into column batches
+every ``batch_steps`` states, after a quiet second (so a live viewer never lags much), and at the end.
+Each batch goes to every sink: Rerun (``--rrd``, ``--spawn``, ``--connect-viewer``: ``rr.send_columns``, one
+call per entity) and Foxglove (``--mcap`` file, ``--foxglove`` live WebSocket server:
+:class:`cdpr.recording.mcap.FoxgloveSink`, the same rows as Foxglove messages). Nothing is logged per step,
+so the loop is not slowed down.
 The end is the clock's ``finished`` status once the final state is in (or after ``FINISH_GRACE``), an
 ``aborted`` status, or SIGINT/SIGTERM: :meth:`RecorderNode.close` then flushes what is left and closes
 the file, which is complete and readable in every case.
@@ -13,17 +16,23 @@ from __future__ import annotations
 
 import argparse
 import time
+from typing import TYPE_CHECKING
 
 import numpy as np
 import rerun as rr
 
 from cdpr import recording
 from cdpr.config.scenario import Scenario
+from cdpr.errors import InputError
 from cdpr.protocol import Keys, ProtocolError, Setpoints, Status, Telemetry
 from cdpr.protocol.session import session_info
 from cdpr.runtime.service import Node
 from cdpr.runtime.transport import Event, RateLimitedLog, log
 from cdpr_recorder.core import Batch, Params, RecorderCore
+
+if TYPE_CHECKING:
+    from cdpr.recording.live import LiveServer
+    from cdpr.recording.mcap import FoxgloveSink
 
 FINISH_GRACE = 1.0  # seconds to wait for the final state after the clock says "finished"
 QUIET_FLUSH = 1.0  # seconds after which buffered data is sent even if a batch is not full
@@ -41,12 +50,19 @@ class RecorderNode(Node):
         spawn: bool = False,
         viewer: str | None = None,
         params: Params | None = None,
+        mcap: str | None = None,
+        foxglove: int | None = None,
+        foxglove_host: str = "127.0.0.1",
     ) -> None:
         super().__init__(keys)
         self.scenario = scenario
         self.robot = scenario.robot
         self.m = scenario.robot.m
         self.rrd = rrd
+        self.mcap = mcap
+        rerun = bool(rrd or spawn or viewer)
+        if not (rerun or mcap or foxglove is not None):
+            raise InputError("the recorder needs a sink: --rrd, --spawn, --connect-viewer, --mcap or --foxglove")
         self.core = RecorderCore(params or Params(cables=self.m))
         self.warn = RateLimitedLog(self.name)
         self.bad_messages = 0
@@ -55,10 +71,29 @@ class RecorderNode(Node):
         self.closed = False
         self.tension_peak = 0.0  # highest applied tension seen: sets the tension plot's range at the end
         self.recording_id = recording.recording_id(keys.session)
-        self.rec = recording.Recording(
-            self.recording_id, rrd=rrd, spawn=spawn, viewer=viewer, blueprint=recording.blueprint()
-        )
-        self._log_static()
+        times = np.linspace(0.0, scenario.duration, PLANNED_PATH_POINTS)
+        self.planned_path = [scenario.trajectory.sample(float(t)).position for t in times]
+        self.rec: recording.Recording | None = None
+        self.fox: FoxgloveSink | None = None
+        self.live: LiveServer | None = None
+        try:
+            if rerun:
+                self.rec = recording.Recording(
+                    self.recording_id, rrd=rrd, spawn=spawn, viewer=viewer, blueprint=recording.blueprint()
+                )
+                self._log_static()
+            if mcap or foxglove is not None:
+                from cdpr.recording.live import LiveServer
+                from cdpr.recording.mcap import FoxgloveSink
+
+                if foxglove is not None:
+                    self.live = LiveServer(foxglove, foxglove_host, name=f"cdpr {scenario.name} ({keys.session})")
+                    log(self.name, f"Foxglove WebSocket server at {self.live.url}")
+                self.fox = FoxgloveSink(self.robot, self.session_description(), mcap=mcap, live=self.live,
+                                        planned_path=self.planned_path)
+        except BaseException:
+            self._close_sinks()
+            raise
 
     @classmethod
     def add_arguments(cls, parser: argparse.ArgumentParser) -> None:
@@ -67,35 +102,45 @@ class RecorderNode(Node):
         g.add_argument("--spawn", action="store_true", help="also stream to a new Rerun viewer")
         g.add_argument("--connect-viewer", default=None, metavar="URL",
                        help="also stream to the Rerun viewer at this gRPC URL")
+        g.add_argument("--mcap", default=None, metavar="FILE",
+                       help="also write the session to this .mcap file (Foxglove schemas, log time = sim time)")
+        g.add_argument("--foxglove", type=int, nargs="?", const=8765, default=None, metavar="PORT",
+                       help="also serve the session live on a Foxglove WebSocket server (default port 8765; "
+                            "0: a free one)")
+        g.add_argument("--foxglove-host", default="127.0.0.1", metavar="HOST",
+                       help="address the Foxglove server listens on (default: %(default)s)")
 
     @classmethod
     def from_args(cls, scenario: Scenario, keys: Keys, args: argparse.Namespace) -> RecorderNode:
-        return cls(scenario, keys, rrd=args.rrd, spawn=args.spawn, viewer=args.connect_viewer)
+        return cls(scenario, keys, rrd=args.rrd, spawn=args.spawn, viewer=args.connect_viewer, mcap=args.mcap,
+                   foxglove=args.foxglove, foxglove_host=args.foxglove_host)
+
+    def session_description(self) -> dict[str, object]:
+        """The session's static description: Rerun's ``session`` document and the MCAP metadata."""
+        sc = self.scenario
+        return {
+            "scenario": sc.name,
+            "session": self.keys.session,
+            "recording_id": self.recording_id,
+            "dt": sc.dt,
+            "duration": sc.duration,
+            "total_steps": sc.total_steps,
+            "cables": self.m,
+            "tmin": self.robot.tmin,
+            "tmax": self.robot.tmax,
+            "scene_every": self.core.params.scene_every,
+            "path_every": self.core.params.path_every,
+            "info": session_info(sc),
+        }
 
     def _log_static(self) -> None:
         sc, rec = self.scenario, self.rec
+        assert rec is not None
         rec.send_recording_name(f"{sc.name} ({self.keys.session})")
-        recording.log_session(
-            rec,
-            {
-                "scenario": sc.name,
-                "session": self.keys.session,
-                "recording_id": self.recording_id,
-                "dt": sc.dt,
-                "duration": sc.duration,
-                "total_steps": sc.total_steps,
-                "cables": self.m,
-                "tmin": self.robot.tmin,
-                "tmax": self.robot.tmax,
-                "scene_every": self.core.params.scene_every,
-                "path_every": self.core.params.path_every,
-                "info": session_info(sc),
-            },
-        )
+        recording.log_session(rec, self.session_description())
         recording.log_scene(rec, self.robot)
         recording.log_series_styles(rec, self.m)
-        times = np.linspace(0.0, sc.duration, PLANNED_PATH_POINTS)
-        recording.log_planned_path(rec, [sc.trajectory.sample(float(t)).position for t in times])
+        recording.log_planned_path(rec, self.planned_path)
 
     # -- wiring -----------------------------------------------------------------------------------
     subscribes = ("telemetry", "setpoints")
@@ -152,14 +197,38 @@ class RecorderNode(Node):
         if self.core.pending and now - self.last_flush >= QUIET_FLUSH:
             self.flush()
 
-    # -- Rerun ------------------------------------------------------------------------------------
+    # -- sinks ------------------------------------------------------------------------------------
     def flush(self, final: bool = False) -> None:
-        self.send(self.core.take(final))
+        batch = self.core.take(final)
+        if self.rec is not None:
+            self.send(batch)
+        if self.fox is not None:
+            self.send_foxglove(batch)
         self.last_flush = time.monotonic()
 
+    def send_foxglove(self, b: Batch) -> None:
+        """The batch as Foxglove messages (MCAP file and/or live server): the same rows as :meth:`send`."""
+        fox = self.fox
+        assert fox is not None
+        s = b.states
+        fox.states(s.step, s.t, s.pose, s.twist, s.lengths, s.tensions, s.clamped, s.scene)
+        sp = b.setpoints
+        fox.setpoints(sp.step, sp.t, sp.pose, sp.scene)
+        c = b.commands
+        fox.commands(c.step, c.t, c.kind, c.values, c.feasible, c.status, c.solve_time, c.lag)
+        e = b.errors
+        fox.errors(e.step, e.t, e.position, e.orientation)
+        r = b.sensors
+        fox.sensors(r.step, r.t, r.encoders, r.load_cells, r.accel, r.gyro)
+        fox.statuses(b.statuses)
+        fox.path(b.path.step, b.path.t, b.path.points)
+        fox.end_batch()
+
+    # -- Rerun ------------------------------------------------------------------------------------
     def send(self, b: Batch) -> None:
         """One ``send_columns`` per entity for the whole batch."""
         rec, robot = self.rec, self.robot
+        assert rec is not None
         s = b.states
         if len(s.step):
             recording.send_scalars(rec, recording.ACTUAL_POSITION, s.step, s.t, s.pose[:, :3])
@@ -248,14 +317,14 @@ class RecorderNode(Node):
         closing = time.monotonic()
         try:
             self.flush(final=True)
-            if self.tension_peak > 0.0:
+            if self.rec is not None and self.tension_peak > 0.0:
                 self.rec.send_blueprint(recording.blueprint(tension_range=(0.0, 1.15 * self.tension_peak)))
         finally:
-            for problem in self.rec.close():
-                log(self.name, f"a viewer did not get everything: {problem}")
+            self._close_sinks()
         took = time.monotonic() - closing
         last = self.core.last_state.step if self.core.last_state is not None else -1
-        where = f" to {self.rrd}" if self.rrd else ""
+        where = "".join(f" to {path}" if i == 0 else f" and {path}" for i, path in
+                        enumerate(p for p in (self.rrd, self.mcap) if p))
         log(
             self.name,
             f"recorded {self.core.recorded_states} states (last step {last}){where}; "
@@ -263,3 +332,17 @@ class RecorderNode(Node):
             f"bad messages {self.bad_messages}; "
             f"closed in {took:.2f} s",
         )
+
+    def _close_sinks(self) -> None:
+        """Close every sink, the files first; a sink that fails does not keep the others open."""
+        try:
+            if self.rec is not None:
+                for problem in self.rec.close():
+                    log(self.name, f"a viewer did not get everything: {problem}")
+        finally:
+            try:
+                if self.fox is not None:
+                    self.fox.close()
+            finally:
+                if self.live is not None:
+                    self.live.close()

@@ -168,6 +168,9 @@ def run_session(
     join_timeout: float | None = None,
     rt_priority: int | None = None,
     in_process: bool = False,
+    mcap: str | None = None,
+    foxglove: int | None = None,
+    foxglove_host: str = "127.0.0.1",
 ) -> int:
     """Run a session of ``scenario`` to its end; print (and write to ``summary``) its JSON summary.
 
@@ -184,7 +187,7 @@ def run_session(
     remote = bool(without)
     listen_eps = list(listen) or ([f"tcp/127.0.0.1:{7447 if remote else free_port()}"])
     local = local_endpoint(listen_eps[0])
-    recording = bool(rrd or spawn or connect_viewer)
+    recording = bool(rrd or spawn or connect_viewer or mcap or foxglove is not None)
     expected = ["sim", "trajectory", "controller"] + (["recorder"] if recording else [])
     if rt_priority is not None:
         # the session's router (this process); each loop service sets its own (--rt-priority below),
@@ -218,6 +221,11 @@ def run_session(
             rec += ["--spawn"]
         if connect_viewer:
             rec += ["--connect-viewer", connect_viewer]
+        if mcap:
+            Path(mcap).parent.mkdir(parents=True, exist_ok=True)
+            rec += ["--mcap", mcap]
+        if foxglove is not None:
+            rec += ["--foxglove", str(foxglove), "--foxglove-host", foxglove_host]
         argv["recorder"] = rec
     with open_session(conf, "cdpr run") as session:
         inbox = Inbox()
@@ -305,6 +313,7 @@ def run_session(
         "faults": {k: v for k, v in {**stats.get("faults", {}), **faults}.items() if v},
         "resends": stats.get("resends"),
         "rrd": rrd,
+        "mcap": mcap,
         "exit_codes": codes,
         "exit_ok": bool(exit_ok and children_ok and stop.signal is None),
     }

@@ -51,6 +51,6 @@ def main(argv: list[str] | None = None) -> None:
 
 # The commands, by job (each module adds its commands to the group above).
 import cdpr.tools.cli.study  # noqa: E402, F401  (cdpr study, tune, study-bench: the study extra)
-from cdpr.tools.cli import results, robot, session  # noqa: E402
+from cdpr.tools.cli import convert, results, robot, session  # noqa: E402
 
-__all__ = ["cli", "main", "results", "robot", "session"]
+__all__ = ["cli", "convert", "main", "results", "robot", "session"]

@@ -53,7 +53,7 @@ _node_command("trajectory", "Run the trajectory service for SCENARIO (--help for
 _node_command("controller",
               "Run the controller service (feedback linearisation + tension distribution) for SCENARIO.")
 _node_command("clock", "Run the lock-step clock for SCENARIO (--help for its options).")
-_node_command("recorder", "Run the recorder: subscribes to the whole session and logs it to Rerun.")
+_node_command("recorder", "Run the recorder: subscribes to the whole session and logs it to Rerun, MCAP, Foxglove.")
 
 
 def _run_options(f: Callable[..., Any]) -> Callable[..., Any]:
@@ -61,6 +61,12 @@ def _run_options(f: Callable[..., Any]) -> Callable[..., Any]:
     f = click.option("--connect-viewer", default=None, help="stream the recording to this Rerun viewer URL")(f)
     f = click.option("--spawn", is_flag=True, help="stream the recording to a new Rerun viewer")(f)
     f = click.option("--rrd", type=click.Path(), default=None, help="write the recording to this .rrd file")(f)
+    f = click.option("--mcap", type=click.Path(), default=None,
+                     help="write the session to this .mcap file (Foxglove schemas; also with --rrd)")(f)
+    f = click.option("--foxglove", type=click.IntRange(0, 65535), is_flag=False, flag_value=8765, default=None,
+                     metavar="[PORT]", help="serve the session live to Foxglove (WebSocket, default port 8765)")(f)
+    f = click.option("--foxglove-host", default="127.0.0.1", show_default=True,
+                     help="address the --foxglove server listens on")(f)
     f = click.option("--mode", type=click.Choice(["fast", "realtime"]), default="fast", show_default=True)(f)
     f = _rt_option(f)
     return _scenario_options(f)

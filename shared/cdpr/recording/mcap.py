@@ -1,0 +1,540 @@
+"""Sessions as MCAP and live over Foxglove's WebSocket protocol: one sink, fed the recorder's column batches.
+
+Everything a session shows in Rerun, for the tools of the ROS/Foxglove world: the same rows (one per step
+and stream, the 3D rows decimated alike), written with ``foxglove-sdk`` on channels whose schemas those
+tools understand:
+
+* Foxglove well-known schemas (protobuf) for the 3D view: ``FrameTransform`` for the platform's pose and
+  the desired pose, ``SceneUpdate`` for the frame, the platform, the cables coloured by tension, the
+  travelled and the planned path;
+* JSON-schema channels (JSON messages) for the time series: platform state, cable tensions, cable
+  lengths, setpoints, tracking errors, commands with the tension distribution's status, sensors, clock;
+* every message's ``log_time`` is the **simulation time** in nanoseconds (``t · 10⁹``), never the wall
+  clock; static messages (the session, the scene's fixed parts) are at time 0;
+* the session's static description (scenario, robot, protocol version, ids) is the MCAP metadata record
+  ``cdpr.session``.
+
+:class:`FoxgloveSink` takes rows as numpy columns (the recorder's ``Batch``, or a recording read back by
+``cdpr convert``) and logs each message once per output: an MCAP file, a live
+:class:`cdpr.recording.live.LiveServer`, or both (each output has its own Foxglove context, so a viewer
+that connects late can be sent the static messages again without writing them twice into the file).
+
+JSON rows are formatted from a per-channel template with ``%r`` (Python's shortest round-trip repr of a
+float), so the numbers read back are exactly the float64 values recorded.
+"""
+
+from __future__ import annotations
+
+import json
+from collections.abc import Iterable, Mapping, Sequence
+from pathlib import Path
+from typing import TYPE_CHECKING, Any
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
+from cdpr.errors import InputError
+from cdpr.mechanics.robot import Robot
+from cdpr.recording import anchor_labels, cable_strips, tension_colors
+
+if TYPE_CHECKING:
+    import foxglove
+
+    from cdpr.recording.live import LiveServer
+
+METADATA_NAME = "cdpr.session"  # the MCAP metadata record with the session's static description
+PROFILE = ""  # no ROS profile: Foxglove schemas and JSON
+
+# Topics
+SESSION = "/session"  # JSON, once at t = 0: the session description (as the metadata record)
+PLATFORM_POSE = "/platform/pose"  # foxglove.FrameTransform world → platform (3D rate)
+DESIRED_POSE = "/desired/pose"  # foxglove.FrameTransform world → desired (3D rate)
+SCENE_STATIC = "/scene/static"  # foxglove.SceneUpdate, once at t = 0: frame, anchors, platform, ghost, plan
+SCENE_CABLES = "/scene/cables"  # foxglove.SceneUpdate: the m cables coloured by tension (3D rate)
+SCENE_PATH = "/scene/path"  # foxglove.SceneUpdate: the path travelled so far (path rate)
+PLATFORM_STATE = "/platform/state"  # JSON every state: position, quaternion, twist, clamped
+TENSIONS = "/cables/tensions"  # JSON every state but 0: applied tensions, tmin, tmax
+LENGTHS = "/cables/lengths"  # JSON every state: cable lengths
+SETPOINT = "/setpoint"  # JSON every setpoint: desired position and quaternion
+ERROR = "/error"  # JSON every step with a state and a setpoint: position and orientation errors
+COMMAND = "/command"  # JSON every command: commanded values, feasibility, TDA status, solve time, loop lag
+SENSORS = "/sensors"  # JSON every reading (scenarios with sensors): encoders, load cells, IMU
+CLOCK = "/clock/status"  # JSON about once a second: the clock's state and stats
+
+WORLD_FRAME, PLATFORM_FRAME, DESIRED_FRAME = "world", "platform", "desired"
+BACKLOG = 1 << 15  # messages buffered per live client (a fast-mode batch is ~1 500 messages)
+
+_NUM = {"type": "number"}
+_INT = {"type": "integer"}
+
+
+def _vec(n: int | None, description: str) -> dict[str, Any]:
+    out: dict[str, Any] = {"type": "array", "items": _NUM, "description": description}
+    if n is not None:
+        out["minItems"] = out["maxItems"] = n
+    return out
+
+
+def _schema(title: str, description: str, properties: Mapping[str, Any]) -> dict[str, Any]:
+    return {
+        "title": title,
+        "description": description,
+        "type": "object",
+        "properties": {"step": {**_INT, "description": "the clock's step k"},
+                       "t": {**_NUM, "description": "simulation time k·dt, s"}, **properties},
+        "required": ["step", "t", *properties],
+    }
+
+
+def json_schemas(m: int) -> dict[str, dict[str, Any]]:
+    """The JSON schema of every JSON channel, for a robot of ``m`` cables."""
+    cables = f"{m} values, cable 0 first"
+    return {
+        PLATFORM_STATE: _schema("cdpr.PlatformState", "the sim's state of the platform", {
+            "position": _vec(3, "[x, y, z] of the centre of mass, m, world frame"),
+            "quaternion": _vec(4, "[qx, qy, qz, qw], platform to world"),
+            "twist": _vec(6, "[vx, vy, vz, wx, wy, wz], m/s and rad/s, world frame"),
+            "clamped": {**_INT, "description": "commands clamped by the sim so far"},
+        }),
+        TENSIONS: _schema("cdpr.CableTensions", "tensions the sim applied over [t − dt, t]", {
+            "tensions": _vec(m, f"N, {cables}"),
+            "tmin": {**_NUM, "description": "lower tension limit, N"},
+            "tmax": {**_NUM, "description": "upper tension limit, N"},
+        }),
+        LENGTHS: _schema("cdpr.CableLengths", "geometric cable lengths ‖a_i − t − R b_i‖", {
+            "lengths": _vec(m, f"m, {cables}"),
+        }),
+        SETPOINT: _schema("cdpr.Setpoint", "the trajectory's desired pose", {
+            "position": _vec(3, "[x, y, z], m"),
+            "quaternion": _vec(4, "[qx, qy, qz, qw]"),
+        }),
+        ERROR: _schema("cdpr.TrackingError", "setpoint k against state k", {
+            "position": _vec(3, "desired − actual, [x, y, z], m"),
+            "position_norm": {**_NUM, "description": "‖desired − actual‖, m"},
+            "orientation": _vec(3, "rotation vector e with exp([e]×) R = R_desired, rad"),
+            "orientation_norm": {**_NUM, "description": "‖e‖, rad"},
+        }),
+        COMMAND: _schema("cdpr.Command", "the command the sim applied at step k and the controller's report", {
+            "kind": {"type": "string", "enum": ["tensions", "lengths"], "description": "what values holds"},
+            "values": _vec(m, f"commanded tensions (N) or unstretched lengths (m), {cables}"),
+            "feasible": {"type": "boolean", "description": "the tension distribution was feasible"},
+            "status": {"type": "string", "description": "the tension distribution's status"},
+            "solve_time": {"type": ["number", "null"], "description": "s the controller spent (null: not sent)"},
+            "lag": {**_NUM, "description": "s from the state going out to the step's integration"},
+        }),
+        SENSORS: _schema("cdpr.Sensors", "noisy sensor readings taken with state k", {
+            "encoders": _vec(m, f"cable lengths the winch encoders measure, m, {cables}"),
+            "load_cells": _vec(m, f"tensions the load cells measure, N, {cables}"),
+            "accel": _vec(3, "IMU specific force, platform frame, m/s²"),
+            "gyro": _vec(3, "IMU angular velocity, platform frame, rad/s"),
+        }),
+        CLOCK: _schema("cdpr.ClockStatus", "the clock's status (about once a second)", {
+            "state": {"type": "string", "description": "waiting, running, paused, finished or aborted"},
+            "reason": {"type": "string"},
+            "changed": {"type": "boolean", "description": "state or reason differ from the previous status"},
+            "stats": {"type": "object", "additionalProperties": _NUM,
+                      "description": "every number of the clock's stats, nested maps joined with /"},
+        }),
+    }
+
+
+SESSION_SCHEMA = {"title": "cdpr.Session", "type": "object",
+                  "description": "the session's static description (also the MCAP metadata record cdpr.session)"}
+
+
+# --------------------------------------------------------------------------------------------------
+# Pure formatting
+
+
+def nanoseconds(t: ArrayLike) -> NDArray[np.int64]:
+    """Simulation times (s) as MCAP log times (ns, rounded)."""
+    return np.rint(np.asarray(t, dtype=float) * 1e9).astype(np.int64)
+
+
+def _floats(n: int) -> str:
+    return ",".join(["%r"] * n)
+
+
+def format_rows(template: str, *columns: ArrayLike) -> list[bytes]:
+    """``template % row`` for each row of the columns side by side (each (n,) or (n, k)), as UTF-8.
+
+    Columns are cast to float, so an integer is written with ``%d`` and a float with ``%r`` (the
+    shortest text that reads back as the same float64)."""
+    cols = [np.asarray(c, dtype=float) for c in columns]
+    n = cols[0].shape[0]
+    table = np.column_stack([c.reshape(n, -1) for c in cols]).tolist() if n else []
+    return [(template % tuple(row)).encode() for row in table]
+
+
+def metadata(session: Mapping[str, Any], protocol_version: int) -> dict[str, str]:
+    """The ``cdpr.session`` metadata record: every field of the session description, as text (JSON for
+    anything but a string), plus the protocol version and the robot's name."""
+    out = {k: v if isinstance(v, str) else json.dumps(v) for k, v in session.items()}
+    out["protocol_version"] = str(protocol_version)
+    robot = session.get("info", {}).get("robot", {}) if isinstance(session.get("info"), Mapping) else {}
+    if "name" in robot:
+        out["robot"] = str(robot["name"])
+    return out
+
+
+# --------------------------------------------------------------------------------------------------
+# The sink
+
+
+class _Output:
+    """One Foxglove context (an MCAP file's or a live server's) with a channel per topic."""
+
+    def __init__(self, context: foxglove.Context, schemas: Mapping[str, tuple[str, foxglove.Schema]]) -> None:
+        import foxglove
+
+        self.context = context
+        self.channels = {
+            topic: foxglove.Channel(topic, schema=schema, message_encoding=encoding, context=context)
+            for topic, (encoding, schema) in schemas.items()
+        }
+
+    def wants(self, topic: str) -> bool:
+        return self.channels[topic].has_sinks()
+
+    def log(self, topic: str, messages: Sequence[bytes], times: Sequence[int]) -> None:
+        log = self.channels[topic].base.log
+        for msg, ns in zip(messages, times, strict=True):
+            log(msg, ns)
+
+    def close(self) -> None:
+        for channel in self.channels.values():
+            channel.close()
+
+
+class FoxgloveSink:
+    """The session's Foxglove channels, written to an MCAP file (``mcap``) and/or a live server.
+
+    ``session`` is the session description (the same map as the Rerun recording's ``session`` document);
+    ``planned_path`` the trajectory sampled (drawn once). Rows go in through :meth:`states`,
+    :meth:`setpoints`, :meth:`commands`, :meth:`errors`, :meth:`sensors`, :meth:`statuses` and
+    :meth:`path`; :meth:`end_batch` after each batch, :meth:`close` at the end.
+    """
+
+    def __init__(
+        self,
+        robot: Robot,
+        session: Mapping[str, Any],
+        mcap: str | Path | None = None,
+        live: LiveServer | None = None,
+        planned_path: ArrayLike | None = None,
+        protocol_version: int | None = None,
+        compression: str = "zstd",
+    ) -> None:
+        import foxglove
+        from foxglove import messages as fm
+        from foxglove.mcap import MCAPCompression, MCAPWriteOptions
+
+        from cdpr.protocol import PROTOCOL_VERSION
+
+        if mcap is None and live is None:
+            raise ValueError("a Foxglove sink needs an MCAP path or a live server")
+        self.robot = robot
+        self.m = robot.m
+        self.session = dict(session)
+        self.mcap_path = None if mcap is None else Path(mcap)
+        self.live = live
+        self.messages = 0  # logged to the file (or to the live server without a file)
+        self._fm = fm
+        schemas: dict[str, tuple[str, foxglove.Schema]] = {
+            topic: ("json", foxglove.Schema(name=s["title"], encoding="jsonschema", data=json.dumps(s).encode()))
+            for topic, s in json_schemas(self.m).items()
+        }
+        schemas[SESSION] = ("json", foxglove.Schema(name=SESSION_SCHEMA["title"], encoding="jsonschema",
+                                                    data=json.dumps(SESSION_SCHEMA).encode()))
+        for topic in (PLATFORM_POSE, DESIRED_POSE):
+            schemas[topic] = ("protobuf", fm.FrameTransform.get_schema())
+        for topic in (SCENE_STATIC, SCENE_CABLES, SCENE_PATH):
+            schemas[topic] = ("protobuf", fm.SceneUpdate.get_schema())
+        self.outputs: list[_Output] = []
+        self.writer: Any = None
+        if self.mcap_path is not None:
+            try:
+                self.mcap_path.parent.mkdir(parents=True, exist_ok=True)
+                self.mcap_path.touch()
+            except OSError as exc:
+                raise InputError(f"--mcap: cannot write {self.mcap_path}: {exc.strerror or exc}") from None
+            codec = {"zstd": MCAPCompression.Zstd, "lz4": MCAPCompression.Lz4, "none": None}[compression]
+            context = foxglove.Context()
+            options = MCAPWriteOptions(compression=codec, profile=PROFILE, compression_threads=0)
+            self.writer = foxglove.open_mcap(self.mcap_path, allow_overwrite=True, context=context,
+                                             writer_options=options)
+            self.outputs.append(_Output(context, schemas))
+        if live is not None:
+            self.outputs.append(_Output(live.context, schemas))
+        self._live = self.outputs[-1] if live is not None else None
+        version = PROTOCOL_VERSION if protocol_version is None else protocol_version
+        if self.writer is not None:
+            self.writer.write_metadata(METADATA_NAME, metadata(self.session, version))
+        self._tensions_template = (
+            '{"step":%d,"t":%r,"tensions":[' + _floats(self.m) + f'],"tmin":{robot.tmin!r},"tmax":{robot.tmax!r}}}'
+        )
+        self.last_ns = 0  # log time of the latest message
+        self._static = self._static_messages(planned_path, version)
+        for topic, msg in self._static:
+            self._log(topic, [msg], [0])
+
+    # -- static data ------------------------------------------------------------------------------
+    def _static_messages(self, planned_path: ArrayLike | None, version: int) -> list[tuple[str, bytes]]:
+        fm, robot = self._fm, self.robot
+        session = json.dumps({**self.session, "protocol_version": version}).encode()
+        grey, dark = _color(140, 140, 140, 255), _color(30, 30, 30, 255)
+        lo, hi = np.asarray(robot.frame_min, float), np.asarray(robot.frame_max, float)
+        corners = np.array([[x, y, z] for x in (lo[0], hi[0]) for y in (lo[1], hi[1]) for z in (lo[2], hi[2])])
+        edges = [(0, 1), (0, 2), (0, 4), (1, 3), (1, 5), (2, 3), (2, 6), (3, 7), (4, 5), (4, 6), (5, 7), (6, 7)]
+        frame_lines = fm.LinePrimitive(
+            type=fm.LinePrimitiveLineType.LineList, thickness=0.01, color=grey,
+            points=[_point(corners[i]) for pair in edges for i in pair],
+        )
+        a, a_labels = anchor_labels(robot.frame_points)
+        b, b_labels = anchor_labels(robot.platform_points)
+        entities = [
+            fm.SceneEntity(frame_id=WORLD_FRAME, id="frame", lines=[frame_lines],
+                           spheres=[_sphere(p, 0.08, dark) for p in a],
+                           texts=[_text(p, label) for p, label in zip(a, a_labels, strict=True)]),
+            fm.SceneEntity(frame_id=PLATFORM_FRAME, id="platform", frame_locked=True,
+                           **self._shape(_color(70, 130, 180, 255)),
+                           **({"spheres": [_sphere(p, 0.05, dark) for p in b]} if robot.mode != "point_mass" else {}),
+                           texts=[_text(p, label) for p, label in zip(b, b_labels, strict=True)]),
+            fm.SceneEntity(frame_id=DESIRED_FRAME, id="desired", frame_locked=True,
+                           **self._shape(_color(255, 165, 0, 70))),
+        ]
+        if planned_path is not None:
+            pts = np.asarray(planned_path, dtype=float).reshape(-1, 3)
+            entities.append(fm.SceneEntity(frame_id=WORLD_FRAME, id="planned_path", lines=[fm.LinePrimitive(
+                type=fm.LinePrimitiveLineType.LineStrip, thickness=0.012, color=_color(255, 165, 0, 160),
+                points=[_point(p) for p in pts])]))
+        scene = fm.SceneUpdate(entities=entities).encode()
+        return [(SESSION, session), (SCENE_STATIC, scene)]
+
+    def _shape(self, color: Any) -> dict[str, Any]:
+        fm, shape = self._fm, self.robot.shape
+        if shape.type == "box":
+            return {"cubes": [fm.CubePrimitive(size=fm.Vector3(x=shape.size[0], y=shape.size[1], z=shape.size[2]),
+                                               color=color)]}
+        if shape.type == "sphere":
+            d = 2.0 * shape.size[0]
+            return {"spheres": [fm.SpherePrimitive(size=fm.Vector3(x=d, y=d, z=d), color=color)]}
+        r, h = shape.size
+        return {"cylinders": [fm.CylinderPrimitive(size=fm.Vector3(x=2 * r, y=2 * r, z=h), bottom_scale=1.0,
+                                                   top_scale=1.0, color=color)]}
+
+    # -- output -----------------------------------------------------------------------------------
+    def _wanted(self, topic: str) -> list[_Output]:
+        return [o for o in self.outputs if o.wants(topic)]
+
+    def _log(self, topic: str, messages: Sequence[bytes], times: Sequence[int] | NDArray[np.int64]) -> None:
+        ns = times.tolist() if isinstance(times, np.ndarray) else list(times)
+        for out in self.outputs:
+            out.log(topic, messages, ns)
+        self.messages += len(messages)
+        if ns:
+            self.last_ns = max(self.last_ns, max(ns))
+
+    def _emit(self, topic: str, times: ArrayLike, make: Any) -> None:
+        """Log the messages ``make()`` builds on ``topic`` to every output that wants them (none: not built)."""
+        wanted = self._wanted(topic)
+        if not wanted:
+            return
+        ns = nanoseconds(times).tolist()
+        if not ns:
+            return
+        messages = make()
+        for out in wanted:
+            out.log(topic, messages, ns)
+        self.messages += len(messages)
+        self.last_ns = max(self.last_ns, max(ns))
+
+    # -- rows -------------------------------------------------------------------------------------
+    def states(self, step: ArrayLike, t: ArrayLike, pose: ArrayLike, twist: ArrayLike, lengths: ArrayLike,
+               tensions: ArrayLike, clamped: ArrayLike, scene: ArrayLike) -> None:
+        """State rows; ``scene`` marks the rows drawn in 3D (pose transform and cables)."""
+        k = np.asarray(step, dtype=np.int64)
+        if not len(k):
+            return
+        tt, p = np.asarray(t, dtype=float), np.asarray(pose, dtype=float).reshape(-1, 7)
+        tw, ln = np.asarray(twist, dtype=float), np.asarray(lengths, dtype=float)
+        f, cl = np.asarray(tensions, dtype=float), np.asarray(clamped)
+        m = self.m
+        self._emit(PLATFORM_STATE, tt, lambda: format_rows(
+            '{"step":%d,"t":%r,"position":[%r,%r,%r],"quaternion":[%r,%r,%r,%r],"twist":[%r,%r,%r,%r,%r,%r],'
+            '"clamped":%d}', k, tt, p, tw, cl))
+        self._emit(LENGTHS, tt, lambda: format_rows('{"step":%d,"t":%r,"lengths":[' + _floats(m) + "]}", k, tt, ln))
+        applied = k > 0  # state 0: nothing applied yet
+        self._emit(TENSIONS, tt[applied], lambda: format_rows(self._tensions_template, k[applied], tt[applied],
+                                                              f[applied]))
+        sc = np.asarray(scene, dtype=bool)
+        self._emit(PLATFORM_POSE, tt[sc], lambda: self._transforms(PLATFORM_FRAME, tt[sc], p[sc]))
+        self._emit(SCENE_CABLES, tt[sc], lambda: self._cables(tt[sc], p[sc], f[sc]))
+
+    def setpoints(self, step: ArrayLike, t: ArrayLike, pose: ArrayLike, scene: ArrayLike) -> None:
+        k = np.asarray(step, dtype=np.int64)
+        if not len(k):
+            return
+        tt, p = np.asarray(t, dtype=float), np.asarray(pose, dtype=float).reshape(-1, 7)
+        self._emit(SETPOINT, tt, lambda: format_rows(
+            '{"step":%d,"t":%r,"position":[%r,%r,%r],"quaternion":[%r,%r,%r,%r]}', k, tt, p))
+        sc = np.asarray(scene, dtype=bool)
+        self._emit(DESIRED_POSE, tt[sc], lambda: self._transforms(DESIRED_FRAME, tt[sc], p[sc]))
+
+    def errors(self, step: ArrayLike, t: ArrayLike, position: ArrayLike, orientation: ArrayLike) -> None:
+        k = np.asarray(step, dtype=np.int64)
+        if not len(k):
+            return
+        tt = np.asarray(t, dtype=float)
+        e, r = np.asarray(position, dtype=float).reshape(-1, 3), np.asarray(orientation, dtype=float).reshape(-1, 3)
+        self._emit(ERROR, tt, lambda: format_rows(
+            '{"step":%d,"t":%r,"position":[%r,%r,%r],"position_norm":%r,"orientation":[%r,%r,%r],'
+            '"orientation_norm":%r}', k, tt, e, np.linalg.norm(e, axis=1), r, np.linalg.norm(r, axis=1)))
+
+    def commands(self, step: ArrayLike, t: ArrayLike, kind: str, values: ArrayLike, feasible: ArrayLike,
+                 status: Sequence[str], solve_time: ArrayLike, lag: ArrayLike) -> None:
+        """Command rows; a NaN ``solve_time`` (the controller sent none) is written as null."""
+        k = np.asarray(step, dtype=np.int64)
+        if not len(k):
+            return
+        tt = np.asarray(t, dtype=float)
+
+        def make() -> list[bytes]:
+            head = '{"step":%d,"t":%r,"kind":' + json.dumps(kind) + ',"values":[' + _floats(self.m) + "]"
+            st = np.asarray(solve_time, dtype=float)
+            timed = ~np.isnan(st)
+            rows = format_rows(head + ',"lag":%r,"solve_time":%r', k, tt, values, lag, np.where(timed, st, 0.0))
+            statuses: dict[str, bytes] = {}
+            out = []
+            for j, row in enumerate(rows):
+                if not timed[j]:
+                    row = row[: row.rindex(b',"solve_time":')] + b',"solve_time":null'
+                s = status[j]
+                tail = statuses.get(s)
+                if tail is None:
+                    tail = statuses[s] = f',"status":{json.dumps(s)}'.encode()
+                out.append(row + (b',"feasible":true' if feasible[j] else b',"feasible":false') + tail + b"}")
+            return out
+
+        self._emit(COMMAND, tt, make)
+
+    def sensors(self, step: ArrayLike, t: ArrayLike, encoders: ArrayLike, load_cells: ArrayLike,
+                accel: ArrayLike, gyro: ArrayLike) -> None:
+        k = np.asarray(step, dtype=np.int64)
+        if not len(k):
+            return
+        tt, m = np.asarray(t, dtype=float), self.m
+        self._emit(SENSORS, tt, lambda: format_rows(
+            '{"step":%d,"t":%r,"encoders":[' + _floats(m) + '],"load_cells":[' + _floats(m)
+            + '],"accel":[%r,%r,%r],"gyro":[%r,%r,%r]}', k, tt, encoders, load_cells, accel, gyro))
+
+    def statuses(self, rows: Iterable[Any]) -> None:
+        """Clock status rows, each with ``step``, ``t``, ``state``, ``reason``, ``stats`` and ``changed``."""
+        rows = list(rows)
+        if not rows:
+            return
+        self._emit(CLOCK, [r.t for r in rows], lambda: [json.dumps({
+            "step": int(r.step), "t": float(r.t), "state": r.state, "reason": r.reason, "changed": bool(r.changed),
+            "stats": {key: float(r.stats[key]) for key in sorted(r.stats)},
+        }).encode() for r in rows])
+
+    def path(self, steps: Sequence[int], times: Sequence[float], paths: Sequence[ArrayLike]) -> None:
+        """The travelled path: row j is the whole path so far, (k_j, 3)."""
+        if not len(steps):
+            return
+        fm = self._fm
+
+        def make() -> list[bytes]:
+            out = []
+            for ns, pts in zip(nanoseconds(times).tolist(), paths, strict=True):
+                line = fm.LinePrimitive(type=fm.LinePrimitiveLineType.LineStrip, thickness=0.01,
+                                        color=_color(220, 50, 47, 255),
+                                        points=[_point(p) for p in np.asarray(pts, dtype=float).reshape(-1, 3)])
+                out.append(fm.SceneUpdate(entities=[fm.SceneEntity(
+                    timestamp=_stamp(ns), frame_id=WORLD_FRAME, id="path", lines=[line])]).encode())
+            return out
+
+        self._emit(SCENE_PATH, times, make)
+
+    def end_batch(self) -> None:
+        """After a batch: a live viewer gets the static messages again (one that connected late missed
+        them) and the time of the latest message."""
+        if self._live is None:
+            return
+        for topic, msg in self._static:
+            if self._live.wants(topic):
+                self._live.log(topic, [msg], [self.last_ns])
+        assert self.live is not None
+        self.live.broadcast_time(self.last_ns)
+
+    def close(self) -> None:
+        """Close the MCAP file (with its summary and footer); the live server is closed by its owner."""
+        for out in self.outputs:
+            out.close()
+        if self.writer is not None:
+            self.writer.close()
+            self.writer = None
+
+    # -- 3D messages ------------------------------------------------------------------------------
+    def _transforms(self, child: str, t: NDArray[np.float64], poses: NDArray[np.float64]) -> list[bytes]:
+        fm = self._fm
+        out = []
+        for ns, p in zip(nanoseconds(t).tolist(), poses.tolist(), strict=True):
+            out.append(fm.FrameTransform(
+                timestamp=_stamp(ns), parent_frame_id=WORLD_FRAME, child_frame_id=child,
+                translation=fm.Vector3(x=p[0], y=p[1], z=p[2]),
+                rotation=fm.Quaternion(x=p[3], y=p[4], z=p[5], w=p[6]),
+            ).encode())
+        return out
+
+    def _cables(self, t: NDArray[np.float64], poses: NDArray[np.float64], tensions: NDArray[np.float64]) -> list[bytes]:
+        """One LineList per row: segment i from b_i (world) to a_i, both ends coloured by cable i's tension."""
+        fm, robot = self._fm, self.robot
+        n = len(t)
+        strips = cable_strips(robot, poses[:, :3], poses[:, 3:]).reshape(n, 2 * self.m, 3).tolist()
+        rgba = (tension_colors(tensions, robot.tmin, robot.tmax) / 255.0).tolist()  # (n, m, 4)
+        out = []
+        for ns, pts, colors in zip(nanoseconds(t).tolist(), strips, rgba, strict=True):
+            cs = [fm.Color(r=c[0], g=c[1], b=c[2], a=c[3]) for c in colors]
+            line = fm.LinePrimitive(type=fm.LinePrimitiveLineType.LineList, thickness=0.02,
+                                    points=[fm.Point3(x=p[0], y=p[1], z=p[2]) for p in pts],
+                                    colors=[c for c in cs for _ in (0, 1)])
+            out.append(fm.SceneUpdate(entities=[fm.SceneEntity(
+                timestamp=_stamp(ns), frame_id=WORLD_FRAME, id="cables", lines=[line])]).encode())
+        return out
+
+
+def _stamp(ns: int) -> Any:
+    from foxglove.messages import Timestamp
+
+    return Timestamp(sec=ns // 1_000_000_000, nsec=ns % 1_000_000_000)
+
+
+def _color(r: int, g: int, b: int, a: int) -> Any:
+    from foxglove.messages import Color
+
+    return Color(r=r / 255.0, g=g / 255.0, b=b / 255.0, a=a / 255.0)
+
+
+def _point(p: ArrayLike) -> Any:
+    from foxglove.messages import Point3
+
+    x, y, z = (float(v) for v in np.asarray(p, dtype=float).reshape(3))
+    return Point3(x=x, y=y, z=z)
+
+
+def _sphere(p: ArrayLike, d: float, color: Any) -> Any:
+    from foxglove.messages import Pose, Quaternion, SpherePrimitive, Vector3
+
+    x, y, z = (float(v) for v in np.asarray(p, dtype=float).reshape(3))
+    pose = Pose(position=Vector3(x=x, y=y, z=z), orientation=Quaternion(x=0.0, y=0.0, z=0.0, w=1.0))
+    return SpherePrimitive(pose=pose, size=Vector3(x=d, y=d, z=d), color=color)
+
+
+def _text(p: ArrayLike, text: str) -> Any:
+    from foxglove.messages import Color, Pose, Quaternion, TextPrimitive, Vector3
+
+    x, y, z = (float(v) for v in np.asarray(p, dtype=float).reshape(3))
+    pose = Pose(position=Vector3(x=x, y=y, z=z + 0.1), orientation=Quaternion(x=0.0, y=0.0, z=0.0, w=1.0))
+    return TextPrimitive(pose=pose, billboard=True, font_size=14.0, scale_invariant=True,
+                         color=Color(r=0.1, g=0.1, b=0.1, a=1.0), text=text)
