@@ -98,6 +98,20 @@ def test_a_path_that_is_not_in_the_base_scenario_is_an_error(tmp_path: Path) -> 
         prepare(path, tmp_path / "out", mode="multi-process")
 
 
+def test_an_invalid_point_is_a_failed_row_not_a_failed_study(tmp_path: Path) -> None:
+    from cdpr.tools.study.engine import prepare
+
+    path = write(tmp_path, "name: tda\nscenario: caroca_15kg\nparameters:\n"
+                 "  - {path: controller.tda.method, values: [qp, closed_form, continuity]}\n")
+    prep = prepare(path, tmp_path / "out", mode="multi-process")
+    assert [p.values["controller.tda.method"] for p in prep.todo] == ["qp", "continuity"]
+    (bad,) = prep.rows.values()
+    assert (bad["point"], bad["status"]) == (1, "failed")
+    assert "controller.tda.method: unknown TDA method 'closed_form'" in bad["error"]
+    assert (tmp_path / "out" / "study.yaml").is_file()
+    assert len(list((tmp_path / "out" / "points").glob("*/scenario.yaml"))) == 3
+
+
 def test_without_ray_the_study_commands_say_how_to_get_it(tmp_path: Path) -> None:
     path = write(tmp_path, SMALL)
     code = ("import sys; sys.modules['ray'] = None\n"  # `import ray` raises ImportError, as when it is absent

@@ -23,7 +23,7 @@ from cdpr.errors import InputError
 from cdpr.tools.study.points import Base, Point, check_point, load_base, study_points, write_point_files
 from cdpr.tools.study.runner import resolve_mode, run_point
 from cdpr.tools.study.spec import StudySpec, load_study
-from cdpr.tools.study.table import metrics_of, row_columns, write_table
+from cdpr.tools.study.table import markdown_summary, metrics_of, row_columns, write_table
 
 RAY_MISSING = "cdpr study and cdpr tune need Ray: pip install 'cdpr[study]' (ray[tune], optuna, pyarrow)"
 
@@ -238,6 +238,7 @@ def write_outputs(prep: Prepared, ran: int, wall: float, cluster: dict[str, Any]
     rows = [prep.rows[p.id] for p in prep.points]
     csv_path, parquet_path = write_table(rows, row_columns(prep.spec), prep.out / "results")
     plots = study_plots(prep.spec, rows, prep.out)
+    (prep.out / "summary.md").write_text(markdown_summary(prep.spec, rows), encoding="utf-8")
     ok = sum(r["status"] == "ok" for r in rows)
     steps = sum(_steps(prep.out / "points" / p.id / "result.json") for p in prep.todo)
     return {

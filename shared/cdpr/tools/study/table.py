@@ -67,3 +67,51 @@ def write_table(rows: list[dict[str, Any]], columns: list[str], stem: Path) -> t
 
 def _fmt(v: Any) -> Any:
     return repr(v) if isinstance(v, float) else v
+
+
+def _num(v: Any) -> float | None:
+    if isinstance(v, bool) or not isinstance(v, int | float) or not math.isfinite(v):
+        return None
+    return float(v)
+
+
+def _g(v: float | None) -> str:
+    return "–" if v is None else f"{v:.4g}"
+
+
+def statistics(rows: list[dict[str, Any]], columns: list[str]) -> dict[str, dict[str, float]]:
+    """Per column over the finished points: min, 5th percentile, median, mean, 95th percentile, max."""
+    import numpy as np
+
+    out: dict[str, dict[str, float]] = {}
+    for c in columns:
+        values = np.array([v for r in rows if r.get("status") == "ok" and (v := _num(r.get(c))) is not None])
+        if values.size:
+            p5, p50, p95 = np.percentile(values, [5, 50, 95])
+            out[c] = {"min": float(values.min()), "p5": float(p5), "median": float(p50),
+                      "mean": float(values.mean()), "p95": float(p95), "max": float(values.max()),
+                      "n": int(values.size)}
+    return out
+
+
+def markdown_summary(spec: StudySpec, rows: list[dict[str, Any]], max_rows: int = 40) -> str:
+    """The study as Markdown: its statistics (Monte Carlo) or its whole table (a small grid)."""
+    ok = [r for r in rows if r.get("status") == "ok"]
+    failed = [r for r in rows if r.get("status") != "ok"]
+    lines = [f"**{spec.name}**: {len(rows)} points, {len(ok)} finished, {len(failed)} failed.", ""]
+    params = [p.column for p in spec.parameters]
+    if any(not p.is_grid for p in spec.parameters) or len(rows) > max_rows:
+        stats = statistics(rows, [*params, *spec.metrics])
+        lines += ["| | min | 5 % | median | mean | 95 % | max |", "|---|---|---|---|---|---|---|"]
+        for c, s in stats.items():
+            lines.append(f"| {c} | " + " | ".join(_g(s[k]) for k in ("min", "p5", "median", "mean", "p95", "max"))
+                         + " |")
+    else:
+        cols = [*params, *spec.metrics, "status"]
+        lines += ["| " + " | ".join(cols) + " |", "|" + "---|" * len(cols)]
+        for r in sorted(rows, key=lambda r: r["point"]):
+            lines.append("| " + " | ".join(_g(v) if _num(v) is not None else str(v) for v in
+                                           (r.get(c) for c in cols)) + " |")
+    for r in failed[:10]:
+        lines.append(f"\n- point {r['point']}: {r.get('error')}")
+    return "\n".join(lines) + "\n"
