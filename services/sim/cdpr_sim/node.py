@@ -5,7 +5,8 @@ valid command k has arrived; the state k+1 goes out on ``sim/state`` right after
 grant goes out when the grant arrives; a tick marked ``resend`` publishes the current state again (how
 the clock asks for one). Every state, the command applied with it and the sensor readings also go into
 ``sim/telemetry``, in blocks of :data:`TELEMETRY_EVERY` steps, at the end, and when the clock asks for a
-report (``flush``, ``resend``). Bad commands are dropped with a one-line log; out-of-range tensions are
+report (``flush``, ``resend``); a slow loop sends one at least every :data:`TELEMETRY_PERIOD` seconds (the
+clock takes a long silence for a stall). Bad commands are dropped with a one-line log; out-of-range tensions are
 clamped to [0, tmax] and counted.
 """
 
@@ -24,7 +25,8 @@ from cdpr.runtime.transport import Event, Inbox, log
 from cdpr_sim.core import make_sim, state_message
 from cdpr_sim.sensors import SensorConfig, SensorSuite
 
-TELEMETRY_EVERY = 50  # steps per sim/telemetry block
+TELEMETRY_EVERY = 50  # steps per sim/telemetry block...
+TELEMETRY_PERIOD = 0.2  # ...or seconds, whichever comes first: the clock hears of progress even on a slow loop
 
 
 class SimNode(Node):
@@ -53,8 +55,8 @@ class SimNode(Node):
         self.sensors = None if sensors is None else SensorSuite(SensorConfig.from_spec(sensors, self.m),
                                                                   scenario.dt)
         self._sensors_pub: zenoh.Publisher | None = None
-        self._sensors_wanted = False  # someone subscribes to sim/sensors (the readings go to telemetry anyway)
         self._telemetry_pub: zenoh.Publisher | None = None
+        self.flushed_at = time.monotonic()
         self.block_states: list[State] = []
         self.block_commands: list[Command] = []
         self.block_lags: list[float] = []
@@ -68,11 +70,7 @@ class SimNode(Node):
     def declare(self, session: zenoh.Session, inbox: Inbox) -> list[Any]:
         self._pub, self._telemetry_pub = self.publishers["state"], self.publishers["telemetry"]
         self._sensors_pub = self.publishers["sensors"]
-
-        def on_matching(status: zenoh.MatchingStatus) -> None:
-            self._sensors_wanted = status.matching
-
-        return [self._sensors_pub.declare_matching_listener(on_matching)]
+        return []
 
     def handle(self, event: Event) -> None:
         if event.kind == "tick":
@@ -102,7 +100,7 @@ class SimNode(Node):
         if self.sensors is not None:
             reading = self.sensors.read(self.sim)
             self.block_sensors.append(reading)
-            if self._sensors_wanted and self._sensors_pub is not None:
+            if self._sensors_pub is not None:  # for an estimator or a monitor (Zenoh drops it if nobody listens)
                 self._sensors_pub.put(reading.encode())
 
     def flush(self) -> None:
@@ -113,6 +111,7 @@ class SimNode(Node):
         self._telemetry_pub.put(Telemetry(tuple(self.block_states), tuple(self.block_commands),
                                           tuple(self.block_lags), tuple(self.block_sensors)).encode())
         self.block_states, self.block_commands, self.block_lags, self.block_sensors = [], [], [], []
+        self.flushed_at = time.monotonic()
 
     def on_tick(self, tick: Tick) -> None:
         if self.published_step < 0 and tick.step != self.step:
@@ -177,7 +176,7 @@ class SimNode(Node):
             )
         self.publish_state()
         if (len(self.block_states) >= TELEMETRY_EVERY or self.step >= self.total_steps
-                or 0 <= self.flush_at <= cmd.step):
+                or 0 <= self.flush_at <= cmd.step or time.monotonic() - self.flushed_at >= TELEMETRY_PERIOD):
             if self.flush_at <= cmd.step:
                 self.flush_at = -1
             self.flush()
