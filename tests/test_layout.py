@@ -22,7 +22,7 @@ ALLOWED = {
     "protocol": {"numpy", "msgpack"},
     "runtime": {"numpy", "zenoh"},
     "recording": {"numpy", "rerun", "rerun_cli", "pyarrow",  # all three come with rerun-sdk
-                  "foxglove"},  # foxglove-sdk: MCAP files and the live WebSocket server (cdpr.recording.mcap, .live)
+                  "foxglove", "orjson"},  # MCAP files and the live Foxglove server (cdpr.recording.mcap, .live)
 }
 STDLIB = set(sys.stdlib_module_names) | {"__future__"}
 
