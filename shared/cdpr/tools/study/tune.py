@@ -174,9 +174,7 @@ def run_tune(study_file: str | Path, out: Path | None = None, address: str | Non
         write_point_files(probe, Path(tmp))
         check_point(probe, Path(tmp))
 
-    # Tune's own console output (tables, hints) and per-trial logger files: the table and plots are ours
-    os.environ.setdefault("RAY_AIR_NEW_OUTPUT", "0")
-    os.environ.setdefault("TUNE_DISABLE_AUTO_CALLBACK_LOGGERS", "1")
+    os.environ.setdefault("RAY_AIR_NEW_OUTPUT", "0")  # no console tables from Tune: the progress bar is ours
     import optuna
     import ray
     from ray import tune
