@@ -1,10 +1,11 @@
 # The two commands of the README: `make demo` and `make test`. Both build .venv themselves.
+# `make test-docker`: the tests that need a Docker engine (below).
 PYTHON ?= python3
 VENV := .venv
 PY := $(VENV)/bin/python
 PIP := $(VENV)/bin/pip
 
-.PHONY: demo test lint clean experiments
+.PHONY: demo test test-docker lint clean experiments
 
 $(VENV)/.installed: pyproject.toml
 	$(PYTHON) -m venv $(VENV)
@@ -19,6 +20,29 @@ demo: .venv
 
 test: .venv
 	$(PY) -m pytest $(PYTEST_ARGS)
+
+# `make test-docker`: tests/test_docker.py (pytest -m docker; `make test` leaves them out): builds the
+# three images of docker/Dockerfile and runs compose sessions end to end. BASE is the images' base:
+# given, or python:3.11-slim when the engine has it or can pull it, or else the stand-in that
+# $(LOCAL_BASE_SH) builds from Debian packages (it also installs and starts an engine and Compose
+# where there are none, as root). Without an engine the tests skip, saying why. CDPR_COMPOSE picks
+# the Compose to test ("docker compose" or docker-compose; default: v2 when installed).
+BASE ?=
+LOCAL_BASE_SH ?= ../shared/docker/local-base.sh
+test-docker: .venv
+	@base="$(BASE)"; \
+	if [ -z "$$base" ] && ! docker info >/dev/null 2>&1 && [ -f "$(LOCAL_BASE_SH)" ] && [ "$$(id -u)" = 0 ]; then \
+	  base=$$(bash "$(LOCAL_BASE_SH)") || exit 1; \
+	fi; \
+	if [ -z "$$base" ] && docker info >/dev/null 2>&1; then \
+	  if docker image inspect python:3.11-slim >/dev/null 2>&1 \
+	     || timeout 300 docker pull -q python:3.11-slim >/dev/null 2>&1; then base=python:3.11-slim; \
+	  elif [ -f "$(LOCAL_BASE_SH)" ]; then base=$$(bash "$(LOCAL_BASE_SH)") || exit 1; \
+	  else echo "make test-docker: python:3.11-slim cannot be pulled and $(LOCAL_BASE_SH) is missing: give BASE=IMAGE" >&2; exit 1; \
+	  fi; \
+	fi; \
+	echo "make test-docker: base image $${base:-none (no Docker engine)}"; \
+	CDPR_BASE="$$base" $(PY) -m pytest -m docker tests/test_docker.py $(PYTEST_ARGS)
 
 lint: .venv
 	$(VENV)/bin/ruff check . || true

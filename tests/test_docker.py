@@ -1,0 +1,386 @@
+"""docker/ for real: the three images built from this checkout, sessions run by Docker Compose.
+
+Marked ``docker``: ``make test`` leaves these out, ``make test-docker`` runs exactly them (it first makes
+sure there is an engine and a base image: see the Makefile). Without a reachable Docker engine they
+skip, saying why. Each test is a compose project of its own (a random name, a free host port, a
+temporary recordings folder), removed with ``down`` at its end; short sessions (``--duration 2``).
+
+Settings (environment): ``CDPR_BASE`` the base image of the builds (default python:3.11-slim; the
+Makefile passes a local one where no registry is reachable), ``CDPR_COMPOSE`` the Compose command
+(``docker compose`` or ``docker-compose``; default: v2 when installed, else v1).
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import re
+import shlex
+import shutil
+import subprocess
+import sys
+import time
+import uuid
+from collections.abc import Iterator
+from functools import cache
+from pathlib import Path
+
+import pytest
+
+from conftest import free_port
+
+pytestmark = pytest.mark.docker
+
+ROOT = Path(__file__).resolve().parent.parent
+DOCKER = ROOT / "docker"
+COMPOSE = DOCKER / "compose.yaml"
+SECURE = DOCKER / "compose.secure.yaml"
+REALTIME = DOCKER / "compose.realtime.yaml"
+EXAMPLE = ROOT / "examples" / "remote_controller.py"
+BASE = os.environ.get("CDPR_BASE") or "python:3.11-slim"
+IMAGES = ("cdpr:stack", "cdpr:sim", "cdpr:recorder")
+DURATION = 2.0  # seconds of sim time per session: 2000 steps of 1 ms
+STEPS = 2000
+BUILD_TIMEOUT = 1800.0
+SESSION_TIMEOUT = 300.0
+# The host side (a remote controller, cdpr report) runs this checkout's code, as the images do.
+HOST_ENV = {**os.environ, "PYTHONPATH": os.pathsep.join(
+    [str(ROOT / "shared"), *(str(p) for p in sorted((ROOT / "services").iterdir()) if p.is_dir())])}
+
+
+def _run(argv: list[str], timeout: float = 60.0, **kw: object) -> subprocess.CompletedProcess[str]:
+    return subprocess.run(argv, capture_output=True, text=True, timeout=timeout, check=False, **kw)  # type: ignore[call-overload]
+
+
+@cache
+def compose_command() -> list[str] | None:
+    """The Compose to test with: $CDPR_COMPOSE, else v2 (`docker compose`) when installed, else v1."""
+    if os.environ.get("CDPR_COMPOSE"):
+        return shlex.split(os.environ["CDPR_COMPOSE"]) or None
+    if shutil.which("docker") and _run(["docker", "compose", "version"]).returncode == 0:
+        return ["docker", "compose"]
+    return ["docker-compose"] if shutil.which("docker-compose") else None
+
+
+def no_engine() -> str | None:
+    """Why these tests cannot run here, or None."""
+    if shutil.which("docker") is None:
+        return "no docker command (make test-docker installs an engine where it may: see the Makefile)"
+    try:
+        info = _run(["docker", "info", "--format", "{{.ServerVersion}}"], timeout=30)
+    except subprocess.TimeoutExpired:
+        return "the Docker engine does not answer (docker info timed out)"
+    if info.returncode != 0 or not info.stdout.strip():
+        return f"no reachable Docker engine: {(info.stderr.strip().splitlines() or ['?'])[-1]}"
+    if compose_command() is None:
+        return "neither `docker compose` (v2) nor `docker-compose` (v1) is installed"
+    return None
+
+
+def volumes() -> set[str]:
+    return set(_run(["docker", "volume", "ls", "-q"]).stdout.split())
+
+
+@pytest.fixture(scope="module")
+def engine() -> set[str]:
+    """Skips without an engine; yields the volumes that existed before these tests."""
+    reason = no_engine()
+    if reason is not None:
+        pytest.skip(reason)
+    return volumes()
+
+
+@pytest.fixture(scope="module")
+def images(engine: set[str], tmp_path_factory: pytest.TempPathFactory) -> dict[str, int]:
+    """Builds the three images (once per test session; layers cached by the engine); their sizes."""
+    log = tmp_path_factory.mktemp("build") / "build.log"
+    started = time.monotonic()
+    with log.open("w") as f:
+        proc = subprocess.run([*compose_command(), "-f", str(COMPOSE), "build"], stdout=f, stderr=subprocess.STDOUT,
+                              env={**_clean_env(), "CDPR_BASE": BASE}, cwd=ROOT, timeout=BUILD_TIMEOUT, check=False)
+    elapsed = time.monotonic() - started
+    assert proc.returncode == 0, log.read_text()[-4000:]
+    sizes = {tag: int(_run(["docker", "image", "inspect", "-f", "{{.Size}}", tag]).stdout) for tag in IMAGES}
+    print(f"\nimages built in {elapsed:.0f} s from {BASE}: "
+          + ", ".join(f"{tag} {size / 1e6:.0f} MB" for tag, size in sizes.items()))
+    return sizes
+
+
+def _clean_env() -> dict[str, str]:
+    return {k: v for k, v in os.environ.items() if not k.startswith(("CDPR_", "COMPOSE_"))}
+
+
+class Project:
+    """One compose project: its own name, host port, recordings folder and session id."""
+
+    def __init__(self, tmp_path: Path, *files: Path, **settings: str) -> None:
+        self.name = f"cdprtest{uuid.uuid4().hex[:8]}"
+        self.session = f"s{uuid.uuid4().hex[:8]}"
+        self.port = free_port()
+        self.recordings = tmp_path / "recordings"
+        self.recordings.mkdir()
+        self.files = files or (COMPOSE,)
+        self.env = {**_clean_env(), "CDPR_BASE": BASE, "CDPR_SESSION": self.session, "CDPR_PORT": str(self.port),
+                    "CDPR_RECORDINGS": str(self.recordings), "CDPR_ARGS": f"--duration {DURATION:g}", **settings}
+
+    def argv(self, *args: str) -> list[str]:
+        files = [a for f in self.files for a in ("-f", str(f))]
+        return [*compose_command(), "-p", self.name, *files, *args]
+
+    def compose(self, *args: str, timeout: float = 120.0) -> subprocess.CompletedProcess[str]:
+        return _run(self.argv(*args), timeout=timeout, env=self.env, cwd=ROOT)
+
+    def session_command(self, *extra: str) -> list[str]:
+        """The documented command that runs one session and returns with the clock's exit code."""
+        return self.argv("up", *extra, "--exit-code-from", "clock", "clock")
+
+    def up(self, *extra: str) -> tuple[subprocess.CompletedProcess[str], float]:
+        """The session command; its output (Compose v2 passes the services' stderr to its stderr) in stdout."""
+        started = time.monotonic()
+        proc = subprocess.run(self.session_command(*extra), stdout=subprocess.PIPE, stderr=subprocess.STDOUT,
+                              text=True, timeout=SESSION_TIMEOUT, env=self.env, cwd=ROOT, check=False)
+        return proc, time.monotonic() - started
+
+    def container(self, service: str) -> str:
+        ids = _run(["docker", "ps", "-aq", "--filter", f"label=com.docker.compose.project={self.name}",
+                    "--filter", f"label=com.docker.compose.service={service}"]).stdout.split()
+        assert len(ids) == 1, f"{service}: containers {ids}"
+        return ids[0]
+
+    def inspect(self, service: str) -> dict:
+        return json.loads(_run(["docker", "inspect", self.container(service)]).stdout)[0]
+
+    def logs(self, service: str) -> str:
+        proc = _run(["docker", "logs", self.container(service)])
+        return proc.stdout + proc.stderr
+
+    def wait_exit(self, service: str, timeout: float = 60.0) -> int:
+        return int(_run(["docker", "wait", self.container(service)], timeout=timeout).stdout)
+
+    def report(self) -> str:
+        proc = _run(self.argv("logs", "--no-color"), env=self.env, cwd=ROOT)
+        return (proc.stdout + proc.stderr)[-6000:]
+
+    def down(self) -> None:
+        proc = self.compose("down", "--remove-orphans", "-t", "5", timeout=180)
+        assert proc.returncode == 0, proc.stderr
+        left = _run(["docker", "ps", "-aq", "--filter", f"label=com.docker.compose.project={self.name}"]).stdout
+        assert not left.split(), f"containers of {self.name} left after down: {left}"
+        nets = _run(["docker", "network", "ls", "-q", "--filter", f"label=com.docker.compose.project={self.name}"])
+        assert not nets.stdout.split(), f"networks of {self.name} left after down"
+
+
+@pytest.fixture
+def project(images: dict[str, int], tmp_path: Path) -> Iterator[list[Project]]:
+    """Projects a test makes (append them); each is taken down at the end, whatever happened."""
+    made: list[Project] = []
+    yield made
+    for p in made:
+        p.down()
+
+
+def host_report(rrd: Path, out: Path) -> dict:
+    """`cdpr report` on the host (this checkout's code, the test's Python): the recording's summary."""
+    proc = _run([sys.executable, "-m", "cdpr", "report", str(rrd), "-o", str(out)], timeout=300, env=HOST_ENV)
+    assert proc.returncode == 0, proc.stderr[-3000:]
+    return json.loads(proc.stdout.strip().splitlines()[-1])["summary"]
+
+
+def finished(log: str) -> int:
+    m = re.search(r"\[clock\] finished (\d+) steps", log)
+    assert m, log[-3000:]
+    return int(m.group(1))
+
+
+# --------------------------------------------------------------------------------------------------
+
+
+def test_one_image_per_role(images: dict[str, int]) -> None:
+    probe = ("import importlib.util as u, json, os, pathlib, sys; "
+             "v = u.find_spec('rerun_cli'); "
+             "print(json.dumps({'modules': {m: u.find_spec(m) is not None for m in sys.argv[1:]}, "
+             "'viewer': v is not None and (pathlib.Path(v.origin).parent / 'rerun').exists(), "
+             "'pip': u.find_spec('pip') is not None}))")
+    modules = ["cdpr_clock", "cdpr_trajectory", "cdpr_controller", "cdpr_sim", "cdpr_recorder", "dartpy", "rerun",
+               "matplotlib"]
+    facts = {}
+    for tag in IMAGES:
+        proc = _run(["docker", "run", "--rm", "--entrypoint", "python", tag, "-c", probe, *modules], timeout=120)
+        assert proc.returncode == 0, f"{tag}: {proc.stderr}"
+        facts[tag] = json.loads(proc.stdout)
+        config = json.loads(_run(["docker", "image", "inspect", tag]).stdout)[0]["Config"]
+        assert not config.get("Volumes"), f"{tag} declares volumes: {config['Volumes']}"
+        assert config["WorkingDir"] == "/cdpr"
+        assert config["User"] == ("" if tag == "cdpr:recorder" else "cdpr"), tag  # the recorder: entrypoint.sh
+        assert facts[tag]["pip"] is False, tag
+    has = {tag: {m for m, ok in f["modules"].items() if ok} for tag, f in facts.items()}
+    every = {"cdpr_clock", "cdpr_trajectory", "cdpr_controller", "cdpr_sim", "cdpr_recorder"}  # the cdpr wheel
+    assert has["cdpr:stack"] == every  # the light image: no physics, no Rerun, no plots
+    assert has["cdpr:sim"] == every | {"dartpy"}
+    assert has["cdpr:recorder"] == every | {"rerun", "matplotlib"}
+    assert facts["cdpr:recorder"]["viewer"] is False  # 280 MB that no service runs
+    # dartpy loads (its libGL.so.1 and libX11.so.6 are there), and each image's entrypoint answers.
+    proc = _run(["docker", "run", "--rm", "--entrypoint", "python", "cdpr:sim", "-c", "import dartpy; print('ok')"])
+    assert proc.stdout.strip() == "ok", proc.stderr
+    for tag in IMAGES:
+        assert _run(["docker", "run", "--rm", tag, "--version"], timeout=120).stdout.startswith("cdpr, version"), tag
+    base = int(_run(["docker", "image", "inspect", "-f", "{{.Size}}", BASE]).stdout or 0)
+    assert images["cdpr:stack"] - base < 260e6  # the light image's own layers (numpy, scipy, zenoh, ...)
+    assert images["cdpr:stack"] < images["cdpr:sim"] < images["cdpr:recorder"] < 1.2e9
+
+
+def test_session_with_the_in_stack_controller(project: list[Project], tmp_path: Path) -> None:
+    p = Project(tmp_path)
+    project.append(p)
+    owner = 4321 if os.geteuid() == 0 else os.geteuid()  # the folder's owner: the recording's owner
+    if os.geteuid() == 0:
+        os.chown(p.recordings, owner, owner)
+    proc, elapsed = p.up()
+    assert proc.returncode == 0, proc.stdout[-3000:] + p.report()
+    assert finished(proc.stdout) == STEPS  # `up` showed the clock, and returned when it ended
+    for service in ("sim", "trajectory", "controller", "recorder"):
+        assert p.wait_exit(service) == 0, p.report()
+    assert p.inspect("router")["State"]["Health"]["Status"] == "healthy"  # up for the next session
+    rrd = p.recordings / f"{p.session}.rrd"
+    assert rrd.stat().st_uid == owner
+    summary = host_report(rrd, tmp_path / "report")
+    assert summary["steps"] == summary["total_steps"] == STEPS, summary
+    assert summary["session"] == p.session
+    # `cdpr report` also runs in the recorder's image, into the same host folder.
+    proc = p.compose("run", "--rm", "--no-deps", "recorder", "report", f"/recordings/{p.session}.rrd", timeout=300)
+    assert proc.returncode == 0, proc.stderr[-3000:]
+    assert json.loads(proc.stdout.strip().splitlines()[-1])["summary"]["steps"] == STEPS
+    assert (p.recordings / f"{p.session}_report" / "tracking.png").stat().st_uid == owner
+    print(f"compose session, in-stack controller: {elapsed:.0f} s from `up` to its return")
+
+
+def _wait_for(what: str, predicate: object, timeout: float, report: object) -> None:
+    deadline = time.monotonic() + timeout
+    while not predicate():  # type: ignore[operator]
+        assert time.monotonic() < deadline, f"timed out waiting for {what}\n{report()}"  # type: ignore[operator]
+        time.sleep(0.5)
+
+
+def test_session_with_a_controller_on_the_host(project: list[Project], tmp_path: Path) -> None:
+    p = Project(tmp_path)
+    project.append(p)
+    out = (tmp_path / "up.log").open("w")
+    up = subprocess.Popen(p.session_command("--scale", "controller=0"), stdout=out, stderr=subprocess.STDOUT,
+                          env=p.env, cwd=ROOT)
+    remote = None
+    try:
+        # The clock says whom it waits for, and the healthchecks show who has joined the session.
+        _wait_for("the clock to wait for the controller",
+                  lambda: "[clock] waiting for controller to join" in _try(lambda: p.logs("clock")), 180, p.report)
+        _wait_for("every container to be healthy",
+                  lambda: all(_try(lambda s=s: p.inspect(s)["State"]["Health"]["Status"]) == "healthy"
+                              for s in ("router", "clock", "sim", "trajectory", "recorder")), 60, p.report)
+        remote = subprocess.run([sys.executable, str(EXAMPLE), "--connect", f"tcp/127.0.0.1:{p.port}",
+                                 "--session", p.session], capture_output=True, text=True, timeout=SESSION_TIMEOUT,
+                                env=HOST_ENV, check=False)
+        code = up.wait(timeout=120)
+    finally:
+        if up.poll() is None:
+            up.kill()
+            up.wait()
+        out.close()
+    log = (tmp_path / "up.log").read_text()
+    assert remote is not None
+    assert remote.returncode == 0, remote.stderr[-3000:]
+    assert re.search(rf"answered \d+ states up to step {STEPS - 1} ", remote.stderr), remote.stderr[-3000:]
+    assert code == 0, log[-3000:] + p.report()
+    assert finished(log) == STEPS
+    assert p.wait_exit("recorder") == 0
+    rrd = p.recordings / f"{p.session}.rrd"
+    assert host_report(rrd, tmp_path / "report")["steps"] == STEPS
+
+
+def _try(f: object) -> str:
+    try:
+        return f()  # type: ignore[operator,no-any-return]
+    except (AssertionError, KeyError, IndexError, TypeError, json.JSONDecodeError):
+        return ""
+
+
+def test_secure_profile_runs_with_tls_and_refuses_a_plain_intruder(project: list[Project], tmp_path: Path,
+                                                                   monkeypatch: pytest.MonkeyPatch) -> None:
+    import zenoh
+
+    from cdpr.runtime.transport import zenoh_config
+
+    secrets = tmp_path / "secrets"
+    made = _run(["make", "-s", "-C", str(ROOT), "certs", f"CERTS_DIR={secrets}"])
+    assert made.returncode == 0, made.stderr
+    p = Project(tmp_path, COMPOSE, SECURE, CDPR_SECRETS=str(secrets))
+    project.append(p)
+    proc, _ = p.up()
+    assert proc.returncode == 0, proc.stdout[-3000:] + p.report()
+    assert finished(proc.stdout) == STEPS
+    for service in ("clock", "sim", "recorder"):
+        assert "--connect tls/router:7447" in " ".join(p.inspect(service)["Config"]["Cmd"])
+    assert p.inspect("router")["State"]["Running"]
+    # The router, still up after the session, on the published port: identities from `make certs` get
+    # in over TLS, a plain TCP client does not, nor a TLS client without a password.
+    monkeypatch.chdir(tmp_path)  # the identity files name secrets/ca.pem relative to the working directory
+    tls, plain = f"tls/127.0.0.1:{p.port}", f"tcp/127.0.0.1:{p.port}"
+    with zenoh.open(zenoh_config("client", [tls], (), "secrets/observer.json5", connect_timeout=30)):
+        pass
+    for endpoint, identity in ((plain, None), (plain, "secrets/controller.json5"), (tls, None)):
+        conf = zenoh_config("client", [endpoint], (), identity, connect_timeout=3)
+        if identity is None and endpoint == tls:
+            conf.insert_json5("transport/link/tls/root_ca_certificate", json.dumps("secrets/ca.pem"))
+        with pytest.raises(Exception, match="Unable to connect"):
+            zenoh.open(conf).close()
+
+
+def test_a_missing_participant_ends_the_session_with_its_name(project: list[Project], tmp_path: Path) -> None:
+    p = Project(tmp_path, CDPR_JOIN_TIMEOUT="10")
+    project.append(p)
+    proc, elapsed = p.up("--scale", "sim=0")  # a stack without its sim
+    assert proc.returncode == 1, proc.stdout[-3000:] + p.report()
+    print(f"compose session without its sim: {elapsed:.0f} s from `up` to its return")
+    reason = re.search(rf"\[clock\] aborted: sim did not join session '{p.session}' within 10 s \(joined: (.*)\)",
+                       proc.stdout)
+    assert reason, proc.stdout[-3000:]
+    assert "[clock] waiting for sim" in proc.stdout  # said from the start, before giving up
+    state = p.inspect("clock")["State"]
+    ran = _seconds(state["FinishedAt"]) - _seconds(state["StartedAt"])
+    assert 10 < ran < 10 + 20, ran  # start-up, the timeout, the participants leaving (LINGER)
+    for service in ("trajectory", "controller", "recorder"):  # the others heard it, and stopped
+        assert p.wait_exit(service) == 0, p.report()
+        assert "session aborted by the clock: sim did not join" in p.logs(service), p.logs(service)
+
+
+def _seconds(stamp: str) -> float:
+    """Docker's RFC 3339 time stamp (nanoseconds) as seconds since the epoch."""
+    from datetime import datetime
+
+    head, _, frac = stamp.rstrip("Z").partition(".")
+    return datetime.fromisoformat(head + "+00:00").timestamp() + float(f"0.{frac or 0}")
+
+
+def _realtime_refused() -> str | None:
+    proc = _run(["docker", "run", "--rm", "--ulimit", "rtprio=99", "--entrypoint", "chrt", "cdpr:stack",
+                 "--fifo", "10", "true"], timeout=120)
+    if proc.returncode != 0:
+        lines = [ln for ln in proc.stderr.splitlines() if ln.strip()] or ["?"]
+        why = next((ln for ln in lines if "rror" in ln or "not permitted" in ln), lines[0])
+        return f"this Docker engine does not let containers use realtime scheduling ({why.strip()[:300]})"
+    return None
+
+
+def test_realtime_session(project: list[Project], tmp_path: Path) -> None:
+    reason = _realtime_refused()
+    if reason is not None:
+        pytest.skip(reason)
+    p = Project(tmp_path, COMPOSE, REALTIME, CDPR_MODE="realtime", CDPR_ARGS="--duration 1")
+    project.append(p)
+    proc, _ = p.up()
+    assert proc.returncode == 0, proc.stdout[-3000:] + p.report()
+    assert finished(proc.stdout) == 1000
+    assert p.inspect("sim")["Config"]["Entrypoint"] == ["chrt", "--fifo", "10", "cdpr"]
+
+
+def test_no_volume_left_behind(engine: set[str]) -> None:
+    """After every session above (and their `down`): not one Docker volume more than before."""
+    assert volumes() - engine == set()
