@@ -58,8 +58,10 @@ def tune(study_file: str, out: str | None, address: str | None, trials: int | No
 @click.option("--duration", type=click.FloatRange(min=0.001), default=4.0, show_default=True,
               help="simulated seconds per session")
 @click.option("--mode", type=_MODES, default="auto", show_default=True)
-def study_bench(points: int, duration: float, mode: str) -> None:
+@click.option("--repeats", type=click.IntRange(1), default=1, show_default=True,
+              help="alternate the two phases this many times (medians: fairer on a shared machine)")
+def study_bench(points: int, duration: float, mode: str, repeats: int) -> None:
     """Aggregate steps/s of a study against the same sessions run one at a time (JSON on stdout)."""
     from cdpr.tools.study.bench import study_throughput
 
-    _emit(study_throughput(points, duration, mode, progress=True))
+    _emit(study_throughput(points, duration, mode, progress=True, repeats=repeats))
