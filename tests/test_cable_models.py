@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import math
 from pathlib import Path
+from typing import Any
 
 import msgpack
 import numpy as np
@@ -339,6 +340,203 @@ def test_light_sagging_cables_behave_like_straight_ones() -> None:
     assert np.abs(sag.state().position - straight.state().position).max() < 1e-6
     heavy = SagSim(robot, DT, p0, params=SagParams(mass_per_length=0.05), command="lengths")
     assert np.abs(heavy.encoder_lengths() - l0).max() > 1e-4  # while 50 g/m sag by much more
+
+
+@pytest.mark.parametrize("off", [0.0, 1e-9, 1e-6, 1e-4])  # m: the anchor's horizontal offset
+def test_sag_cable_right_under_its_anchor_holds_a_mass_without_fallback(off: float) -> None:
+    """A 1 kg mass on 2 m of the sag scenario's rope (0.05 kg/m, EA 1 MN), vertical or within 5e-5 rad of
+    it, held at its start length: the hanging elastic rod. It stays put, the platform end holds m g, the
+    winch m g and the cable's weight (the old solver fell back to a straight, weightless cable here)."""
+    robot = hanging_robot(1.0).replace(frame_points=np.array([[off, 0.0, 3.0]]))
+    params = SagParams(mass_per_length=0.05)
+    sim = SagSim(robot, DT, [0.0, 0.0, 1.0], params=params, command="lengths")
+    l0 = sim.encoder_lengths().copy()
+    for _ in range(300):
+        sim.step(l0)
+    s = sim.state()
+    assert sim.fallbacks == 0
+    assert sim.fallback_reason is None
+    assert s.position[2] == pytest.approx(1.0, abs=2e-9)
+    assert s.tensions[0] == pytest.approx(1.0 * G, rel=1e-6)
+    assert sim.load_cell_tensions()[0] == pytest.approx(1.0 * G + params.weight_per_length * l0[0], rel=1e-6)
+    # the rod's stretch by Hooke's law, by hand: ∫ V/EA ds with V = m g + w s
+    w = params.weight_per_length
+    assert s.cable_lengths[0] - l0[0] == pytest.approx((G * l0[0] + w * l0[0] ** 2 / 2.0) / params.EA, rel=1e-4)
+
+
+def test_sag_steps_outside_the_domain_are_counted_not_silent() -> None:
+    """Frame-end tensions too small to lift the cable (a 5 kg/m rope: ~50 N/m) have no catenary: those
+    cables, and only those, are straight elastic cables with the commanded tension, and each such step
+    is counted once (however many cables), with the reason."""
+    robot = caroca15()
+    params = SagParams(mass_per_length=5.0, tension_at="frame")
+    sim = SagSim(robot, DT, [0.0, 0.0, 1.0], params=params)
+    assert sim.fallbacks == 0
+    f = np.full(8, 400.0)
+    f[[2, 5]] = 20.0  # far below the ~150 N of cable each lifts
+    for k in range(3):
+        sim.step(f)
+        assert sim.fallbacks == k + 1
+    assert "cable(s) [2, 5]" in (sim.fallback_reason or "")
+    assert sim.load_cell_tensions() == pytest.approx(f, rel=1e-9)  # every winch holds its command
+    platform = sim.state().tensions
+    assert platform[[2, 5]] == pytest.approx([20.0, 20.0], rel=1e-12)  # straight: the same at both ends
+    others = np.delete(np.arange(8), [2, 5])
+    assert np.all(platform[others] < f[others] - 100.0)  # catenaries: the frame end also lifts the cable
+    sim.step(np.full(8, 400.0))
+    assert sim.fallbacks == 3  # back in the domain: not counted
+    sim.reset()
+    assert sim.fallbacks == 0
+
+
+def test_a_catenary_the_solver_misses_falls_back_for_that_cable_only(monkeypatch: pytest.MonkeyPatch) -> None:
+    """Lengths mode: should the solver ever fail (it does not in its domain: here it is made to, for the
+    two cables 3.70 m across and 2.7 m up: 3 and 4), those cables alone are straight elastic ones, and
+    the step is counted once."""
+    import cdpr_sim.sag as sag
+
+    robot = caroca15()
+    sim = SagSim(robot, DT, [0.0, 0.0, 1.0], params=SagParams(mass_per_length=0.05), command="lengths")
+    straight = ElasticSim(robot, DT, [0.0, 0.0, 1.0], command="lengths")
+    real = sag.solve_catenary
+
+    def failing(span: Any, rise: Any, L0: Any, *args: Any, **kwargs: Any) -> Any:
+        if np.any((np.abs(np.asarray(span) - math.hypot(2.9, 2.3)) < 1e-3) & (np.abs(np.asarray(rise) - 2.7) < 1e-3)):
+            raise CatenaryError("catenary: made to fail for cables 3 and 4")
+        return real(span, rise, L0, *args, **kwargs)
+
+    monkeypatch.setattr(sag, "solve_catenary", failing)
+    l0 = sim.encoder_lengths().copy()
+    for k in range(3):
+        sim.step(l0)
+        assert sim.fallbacks == k + 1
+    assert sim.fallback_reason == "catenary: made to fail for cables 3 and 4"
+    # cables 3 and 4 pull along their chords like straight elastic cables of that length, the others do not
+    g = sim._read()
+    forces = sim._law(g, l0, np.zeros(8)).forces
+    chords = straight._law(g, l0, np.zeros(8)).forces
+    assert forces[[3, 4]] == pytest.approx(chords[[3, 4]], rel=1e-12)
+    others = [0, 1, 2, 5, 6, 7]
+    assert np.all(np.abs(forces[others] - chords[others]).max(axis=1) > 1e-3)
+
+
+# --------------------------------------------------------------------------------------------------
+# Elastic cables and winch drives, regime by regime
+
+
+def test_elastic_cable_goes_slack_and_taut_again() -> None:
+    """Paying out 5 cm under a 10 kg mass on an undamped cable: it falls freely (exactly g, DART's
+    gravity) while the cable is slack, is caught, bounces, and goes slack and taut again, repeatedly."""
+    sim = ElasticSim(hanging_robot(10.0), DT, [0.0, 0.0, 1.0], params=ElasticParams(2e4, 0.0), command="lengths")
+    l0 = sim.encoder_lengths().copy()
+    tensions, speeds = [], []
+    for _ in range(3000):
+        sim.step(l0 + 0.05)
+        s = sim.state()
+        tensions.append(s.tensions[0])
+        speeds.append(s.twist[2])
+    T = np.array(tensions)
+    slack = T == 0.0
+    assert np.count_nonzero(np.diff(slack.astype(int)) == 1) >= 5  # taut → slack, again and again
+    assert np.count_nonzero(np.diff(slack.astype(int)) == -1) >= 5  # and slack → taut
+    free = slack[1:] & slack[:-1]  # whole steps without tension: free fall
+    assert np.diff(np.array(speeds))[free] / DT == pytest.approx(np.full(np.count_nonzero(free), -G), abs=1e-9)
+    assert T.max() > 3.0 * 10.0 * G  # caught: the cable stretches well past the static load
+    assert sim.fallbacks == 0
+
+
+def test_elastic_law_over_stretch_and_zero_length() -> None:
+    EA = 1e5
+    # over-stretch: Hooke's law stays linear (no yield, no rupture), finite, and invertible
+    f = elastic_tensions([1.5, 3.0, 11.0], [0.0] * 3, [1.0] * 3, [0.0] * 3, EA, 0.0)
+    assert f == pytest.approx([0.5 * EA, 2.0 * EA, 10.0 * EA], rel=1e-12)
+    assert unstretched_lengths([1.5, 3.0, 11.0], f, EA) == pytest.approx([1.0] * 3, rel=1e-12)
+    # no length: refused, not a division by zero
+    with pytest.raises(ValueError, match="unstretched lengths must be > 0"):
+        elastic_tensions([1.0], [0.0], [0.0], [0.0], EA, 0.0)
+    with pytest.raises(ValueError, match="unstretched lengths must be > 0"):
+        elastic_tensions([1.0], [0.0], [-0.1], [0.0], EA, 0.0)
+
+
+def test_winding_a_cable_in_to_nothing_falls_back_to_the_shortest_cable_the_model_follows() -> None:
+    """A mass 5 cm under its anchor, the winch commanded to wind in to 1 mm: below ``min_length`` the
+    stiffness EA/l0 outruns the sub-steps, so the law takes the cable as min_length long (counted, with
+    the reason), and the mass settles where a cable of min_length holds it."""
+    robot = hanging_robot(10.0, top=1.05)
+    sim = ElasticSim(robot, DT, [0.0, 0.0, 1.0], command="lengths")
+    assert 0.0 < sim.min_length < 0.05
+    for _ in range(2000):
+        sim.step(np.array([1e-3]))
+    assert sim.encoder_lengths()[0] == pytest.approx(1e-3, abs=1e-9)  # the drum did wind it in
+    assert sim.fallbacks > 1500  # every step since the drum passed min_length
+    assert "below the" in (sim.fallback_reason or "")
+    s = sim.state()
+    assert s.position[2] == pytest.approx(1.05 - sim.min_length * (1.0 + 10.0 * G / 1e6), abs=1e-9)
+    assert s.tensions[0] == pytest.approx(10.0 * G, rel=1e-6)
+
+
+def test_winch_torque_saturation_and_anti_windup() -> None:
+    """Reeling in 30 cm at once: the drive saturates, the drum slews at its torque limit, and (the
+    integral held while saturated) arrives with a small overshoot and settles on the command. Without the
+    anti-windup the same move overshoots by ~1.7 m."""
+    sim = ElasticSim(hanging_robot(10.0), DT, [0.0, 0.0, 1.0], command="lengths")
+    target = sim.encoder_lengths()[0] - 0.3
+    encoder = []
+    for _ in range(2000):
+        sim.step(np.array([target]))
+        encoder.append(sim.encoder_lengths()[0])
+    e = np.array(encoder) - target
+    assert sim.saturated > 100
+    assert e.min() > -5e-3  # overshoot below 5 mm
+    assert 0.05 <= np.argmax(e < 1e-3) * DT <= 0.2  # the slew takes a while (torque-limited), not forever
+    assert abs(e[-1]) < 1e-6
+
+
+def test_winch_reverses_smoothly() -> None:
+    """A 1 Hz, ±5 cm sinusoidal length command: once the start-up transient has died out (0.5 s), the
+    drum reverses exactly where the command does (twice per period, no chatter), tracks within a
+    millimetre, never saturates, and the cable stays taut with a smooth tension."""
+    sim = ElasticSim(hanging_robot(10.0), DT, [0.0, 0.0, 1.0], command="lengths")
+    l0 = sim.encoder_lengths()[0]
+    encoder, errors, tensions = [l0], [], []
+    for k in range(3000):
+        command = l0 + 0.05 * math.sin(2.0 * math.pi * k * DT)
+        sim.step(np.array([command]))
+        encoder.append(sim.encoder_lengths()[0])
+        errors.append(encoder[-1] - command)
+        tensions.append(sim.state().tensions[0])
+    v = np.diff(encoder)[500:]
+    turns = 500 + np.flatnonzero(v[1:] * v[:-1] < 0.0)
+    assert np.abs(turns - np.array([750, 1250, 1750, 2250, 2750])).max() <= 5  # the command's extremes
+    assert np.abs(errors[500:]).max() < 1e-3
+    assert sim.saturated == 0
+    T = np.array(tensions[1500:])
+    assert T.min() > 0.5 * 10.0 * G
+    assert np.abs(np.diff(T)).max() < 1.0  # N per ms: no jumps at the reversals
+
+
+def test_winch_length_limits() -> None:
+    """Commands beyond max_length are clamped (counted), and the drum stops there; a drive too weak for
+    its load is dragged out to the end of its cable, and the end stop holds the load there."""
+    robot = hanging_robot(10.0).replace(max_length=2.2)
+    sim = ElasticSim(robot, DT, [0.0, 0.0, 1.0], command="lengths")
+    for _ in range(2000):
+        report = sim.step(np.array([5.0]))
+        assert report.clamped_high == 1
+    assert sim.encoder_lengths()[0] == 2.2
+    assert sim.stopped > 0
+    with pytest.raises(ValueError, match="> 0"):
+        sim.step(np.array([0.0]))
+    weak = ElasticSim(robot, DT, [0.0, 0.0, 1.0], command="lengths", winch=WinchParams(torque_max=1.0))
+    start = weak.encoder_lengths()[0]
+    for _ in range(3000):
+        weak.step(np.array([start]))  # 1 N·m cannot hold m g r = 4.9 N·m
+    s = weak.state()
+    assert weak.encoder_lengths()[0] == 2.2
+    assert weak.stopped > 0
+    assert s.position[2] == pytest.approx(3.0 - 2.2 * (1.0 + 10.0 * G / 1e6), abs=1e-4)
+    assert abs(s.twist[2]) < 1e-3  # held at the stop
+    assert s.tensions[0] == pytest.approx(10.0 * G, rel=1e-3)
 
 
 # --------------------------------------------------------------------------------------------------

@@ -10,6 +10,14 @@ stretch rate (with the winch still, ``c·l̇``). The force ``f d_i`` acts on the
 towards the frame; the winch's drum feels the same f. A cable that would push (f < 0 while taut, when
 it shortens fast) pulls nothing. The static stretch of a cable holding f is ``l − l0 = f l0 / EA``.
 
+Domain: every chord length l ≥ 0 and unstretched length l0 > 0 (:func:`elastic_tensions` refuses
+l0 ≤ 0). Slack and taut again: the force is 0 exactly while l ≤ l0 and grows continuously from 0 past
+it (the damping term only acts while taut, and never pushes). Hooke's law is linear at any strain: no
+yield, no rupture (a steel rope yields near 1 % strain, breaks near 2–3 %: keep tensions below
+~0.01 EA for the numbers to mean something). As l0 → 0 the stiffness EA/l0 has no bound; in lengths
+mode :class:`~cdpr_sim.winch.WinchSim` evaluates the law at no less than its ``min_length`` and counts
+the steps where it had to (``fallbacks``).
+
 Winches, the two command modes (tensions: ideal torque-controlled winch, the applied tension is the
 command, ``l0 = l·EA/(EA + f)``; lengths: PID-driven drums whose angle sets l0) and the sub-stepped
 integration are :class:`cdpr_sim.winch.WinchSim`'s. With the shipped defaults (``EA`` = 1 MN, about a
@@ -50,8 +58,13 @@ class ElasticParams:
 
 def elastic_tensions(lengths: ArrayLike, rates: ArrayLike, l0: ArrayLike, l0_rates: ArrayLike, EA: float,
                      damping: float) -> Array:
-    """Tensions (N) of straight elastic cables: ``max(0, EA/l0 (l − l0) + c (l̇ − l̇0))``, 0 when slack."""
+    """Tensions (N) of straight elastic cables: ``max(0, EA/l0 (l − l0) + c (l̇ − l̇0))``, 0 when slack.
+
+    Unstretched lengths must be > 0 (a cable of no length has no stiffness to speak of): ValueError.
+    """
     l0 = np.asarray(l0, dtype=float)
+    if not np.all(l0 > 0.0):
+        raise ValueError(f"unstretched lengths must be > 0 (got {l0.min()} m)")
     stretch = np.asarray(lengths, dtype=float) - l0
     f = (EA / l0) * stretch + damping * (np.asarray(rates, dtype=float) - np.asarray(l0_rates, dtype=float))
     return np.where(stretch > 0.0, np.maximum(f, 0.0), 0.0)

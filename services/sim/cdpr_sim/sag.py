@@ -18,10 +18,15 @@ the cable never pushes.
   tension where the cable leaves the winch is); :func:`cdpr.mechanics.catenary.solve_catenary_tension` gives the
   angle and l0. A commanded tension of 0 leaves the cable hanging from the frame: no force.
 
-Newton is warm-started from the previous solution, and retried from a cold start if that fails. Should
-it still fail (a tension too small to lift the cable's own weight has no catenary), the step uses the
-straight elastic cable's force for every cable and counts it in :attr:`SagSim.fallbacks`. The winches
-start holding the platform with at least twice each cable's weight (see ``WinchSim._holding``).
+The solvers are warm-started from the previous solution (they start again from a cold start where
+that does not converge). Their domain (docs/cable-models.md): in ``lengths`` mode every geometry — the
+catenary given L0 always has exactly one solution, vertical and near-vertical cables included; in
+``tensions`` mode every tension at least the least one a cable between those ends can have at that end
+(at the frame end, about the weight of the cable it lifts). Outside it (a commanded frame-end tension too
+small to lift the cable's own weight has no catenary), *that* cable is taken as the straight elastic
+cable with the commanded tension; the step is counted in :attr:`WinchSim.fallbacks` with the solver's
+message in ``fallback_reason`` (the sim node counts and logs it). The winches start holding the
+platform with at least twice each cable's weight (see ``WinchSim._holding``).
 Winch drives, modes, sub-steps: :class:`cdpr_sim.winch.WinchSim`.
 """
 
@@ -85,14 +90,12 @@ class SagSim(WinchSim):
 
     params_type = SagParams
     params: SagParams
-    fallbacks = 0  # (sub-)steps where the catenary was not solved and straight cables were used
     _warm: tuple[Array, Array] | None = None  # (H, V0) of the last lengths-mode solve
     _warm_tension: tuple[Array, Array] | None = None  # (φ, L0) of the last tensions-mode solve
 
     def reset(self, position: ArrayLike | None = None, rotation: ArrayLike | None = None,
               twist: ArrayLike | None = None) -> None:
         self._warm = self._warm_tension = None
-        self.fallbacks = 0
         super().reset(position, rotation, twist)
 
     def _damping_forces(self, g: Geometry, pull: Array, l0_rate: Array) -> Array:
@@ -108,18 +111,34 @@ class SagSim(WinchSim):
         p = self.params
         span, rise, e_h = cable_planes(self._a, g.points)
         try:
-            try:
-                sol = solve_catenary(span, rise, l0, p.weight_per_length, p.EA, guess=self._warm)
-            except CatenaryError:
-                if self._warm is None:
-                    raise
-                sol = solve_catenary(span, rise, l0, p.weight_per_length, p.EA)  # again, from a cold start
-        except CatenaryError:
-            self.fallbacks += 1
-            self._warm = None
-            return self._straight(g, l0, l0_rate)
+            sol = solve_catenary(span, rise, l0, p.weight_per_length, p.EA, guess=self._warm)
+        except CatenaryError as exc:  # not expected in the domain (module docstring): cable by cable
+            return self._law_each(g, l0, l0_rate, span, rise, e_h, str(exc))
         self._warm = (sol.horizontal, sol.vertical_platform)
         return self._forces(g, sol, e_h, l0_rate)
+
+    def _law_each(self, g: Geometry, l0: Array, l0_rate: Array, span: Array, rise: Array, e_h: Array,
+                  reason: str) -> CableForces:
+        """:meth:`_law` one cable at a time: the cables without a catenary are straight elastic ones."""
+        p = self.params
+        m = self.robot.m
+        H, V0 = np.full(m, np.nan), np.full(m, np.nan)
+        for i in range(m):
+            try:
+                one = solve_catenary(span[i], rise[i], l0[i], p.weight_per_length, p.EA)
+            except CatenaryError:
+                continue
+            H[i], V0[i] = one.horizontal[0], one.vertical_platform[0]
+        solved = np.isfinite(H)
+        self._fallback(reason)
+        self._warm = (H, V0)  # (NaN: a cold start for those next time)
+        straight = self._straight(g, l0, l0_rate)
+        sol = CatenaryForces(np.where(solved, H, 0.0), np.where(solved, V0, 0.0), np.asarray(l0, dtype=float),
+                             np.full(m, p.weight_per_length), 0)
+        law = self._forces(g, sol, e_h, l0_rate)
+        return CableForces(np.where(solved[:, None], law.forces, straight.forces),
+                           np.where(solved, law.platform, straight.platform),
+                           np.where(solved, law.frame, straight.frame))
 
     def _forces(self, g: Geometry, sol: CatenaryForces, e_h: Array, l0_rate: Array) -> CableForces:
         pull = platform_forces(sol, e_h)
@@ -138,27 +157,26 @@ class SagSim(WinchSim):
             return CableForces(forces, platform, frame), l0
         span, rise, e_h = cable_planes(self._a[taut], g.points[taut])
         warm = self._warm_tension
-        try:
-            try:
-                sol = solve_catenary_tension(span, rise, f[taut], p.weight_per_length, p.EA, end=p.tension_at,
-                                             guess=None if warm is None else (warm[0][taut], warm[1][taut]))
-            except CatenaryError:
-                if warm is None:
-                    raise
-                sol = solve_catenary_tension(span, rise, f[taut], p.weight_per_length, p.EA, end=p.tension_at)
-        except CatenaryError:
-            self.fallbacks += 1
-            self._warm_tension = None
-            return CableForces(f[:, None] * g.directions, f, f), l0
-        forces[taut] = platform_forces(sol, e_h)
-        platform[taut] = sol.tension_platform
-        frame[taut] = sol.tension_frame
-        l0[taut] = sol.unstretched_length
+        sol = solve_catenary_tension(span, rise, f[taut], p.weight_per_length, p.EA, end=p.tension_at,
+                                     guess=None if warm is None else (warm[0][taut], warm[1][taut]),
+                                     on_failure="nan")
         at_frame = p.tension_at == "frame"
-        phi = np.arctan2(sol.vertical_frame if at_frame else sol.vertical_platform, sol.horizontal)
         # Warm start for the next step: this step's angle and l0 (the chord's for slack cables).
         phi_all = np.arctan2(g.directions[:, 2], np.hypot(g.directions[:, 0], g.directions[:, 1]))
-        phi_all[taut] = phi
+        solved = np.isfinite(sol.horizontal)
+        done = taut[solved]
+        forces[done] = platform_forces(sol, e_h)[solved]
+        platform[done] = sol.tension_platform[solved]
+        frame[done] = sol.tension_frame[solved]
+        l0[done] = sol.unstretched_length[solved]
+        vertical = sol.vertical_frame if at_frame else sol.vertical_platform
+        phi_all[done] = np.arctan2(vertical, sol.horizontal)[solved]
+        if not solved.all():  # outside the domain (module docstring): the straight elastic cable, that tension
+            out = taut[~solved]
+            forces[out] = f[out, None] * g.directions[out]
+            platform[out] = frame[out] = f[out]
+            self._fallback(f"no catenary has the commanded tension at the {p.tension_at} end of cable(s) "
+                           f"{out.tolist()} ({', '.join(f'{x:.4g}' for x in f[out])} N): straight cable(s) used")
         self._warm_tension = (phi_all, l0.copy())
         return CableForces(forces, platform, frame), l0
 

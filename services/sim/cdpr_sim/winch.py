@@ -30,6 +30,18 @@ Command modes
     come from the cable's force law (:meth:`WinchSim._law`). The commanded length is clamped to
     ``(0, robot.max_length]`` (counted as ``clamped_high``).
 
+Length limits and the model's domain (lengths mode)
+---------------------------------------------------
+The drum holds ``robot.max_length`` of cable: it has end stops at ``l0 = 0`` (all cable wound in) and
+``l0 = max_length`` (all paid out). A drum driven or dragged into a stop stays there, its speed towards
+the stop set to 0 (an inelastic stop); drive-steps spent at a stop are counted in :attr:`WinchSim.stopped`.
+A cable's axial stiffness ``EA/l0`` grows without bound as l0 → 0, faster than the sub-steps can follow:
+below :attr:`WinchSim.min_length`, the length at which the drum–cable mode reaches ω h = 1 (or the
+platform's, ``EA/l0`` through its mass), the force law is outside its domain and is evaluated at
+``min_length`` instead — a fallback. A step in which any force law falls back (here, or a sag cable
+whose catenary has no solution) is counted in :attr:`WinchSim.fallbacks`, and its reason kept in
+:attr:`WinchSim.fallback_reason`; the sim node turns these into its ``cable_fallbacks`` fault counter.
+
 Integration (lengths mode)
 --------------------------
 The platform and the drums are integrated together by semi-implicit (symplectic) Euler over
@@ -135,6 +147,28 @@ def drum_step(p: WinchParams, s: WinchState, torque: Array, tension: Array, inte
     return WinchState(s.angle + h * speed, speed, integral)
 
 
+def end_stops(s: WinchState, low: float, high: float) -> tuple[WinchState, int]:
+    """Drums past an end stop (angle outside [low, high]) put back on it, their speed towards it set to 0
+    (an inelastic stop); the other drums are returned unchanged. Pure: (state, drums at a stop)."""
+    below, above = s.angle <= low, s.angle >= high
+    if not (below.any() or above.any()):
+        return s, 0
+    speed = np.where((below & (s.speed < 0.0)) | (above & (s.speed > 0.0)), 0.0, s.speed)
+    return WinchState(np.clip(s.angle, low, high), speed, s.integral), int(np.count_nonzero(below | above))
+
+
+def min_length_for(EA: float, mass: float, winch: WinchParams, h: float) -> float:
+    """The shortest unstretched length (m) whose cable the explicit sub-steps of ``h`` still follow.
+
+    A cable of stiffness k = EA/l0 on a drum makes the mode ω² = k r²/J + kp/J, and on the platform at
+    least ω² = k/mass; this is the l0 at which the faster of the two reaches ω h = 1 (stable up to 2).
+    0 when the drive alone is faster than that (sub-steps too long for the drive: no length helps).
+    """
+    drum = (winch.inertia / winch.radius**2) * (1.0 / h**2 - winch.kp / winch.inertia)
+    k_max = min(drum, mass / h**2)
+    return EA / k_max if k_max > 0.0 else 0.0
+
+
 @dataclass(frozen=True)
 class Geometry:
     """The platform and its cables at one instant (world frame). Read-only arrays."""
@@ -211,6 +245,10 @@ class WinchSim(ABC):
         self.winch = winch if winch is not None else WinchParams()
         self.step_count = 0
         self.saturated = 0  # drive-steps (cable × sub-step) spent at the torque limit since reset
+        self.stopped = 0  # drive-steps (cable × sub-step) spent at a drum end stop since reset
+        self.fallbacks = 0  # steps in which a force law fell back (outside its domain) since reset
+        self.fallback_reason: str | None = None  # why, the last time
+        self._fell_back = False
         self._a = np.array(robot.frame_points, dtype=float)
         self._b = np.array(robot.platform_points, dtype=float)
         p0, R0, v0 = start_pose(robot, position, rotation, twist)
@@ -223,6 +261,7 @@ class WinchSim(ABC):
             self.substeps = substeps_for(robot, self.dt, self._stiffness(kin.lengths), self.winch,
                                          self._damping(), p0, R0)
         self.h = self.dt / self.substeps
+        self.min_length = min_length_for(self.params_stiffness(), robot.mass, self.winch, self.h)
         self._platform = PlatformBody(robot, self.h)
         self._world, self._joint, self._body = self._platform.world, self._platform.joint, self._platform.body
         self._hold = make_tda("qp")
@@ -261,6 +300,15 @@ class WinchSim(ABC):
     def _stiffness(self, lengths: Array) -> Array:
         """(m,) axial stiffness EA/l0, N/m, for sub-step selection."""
 
+    def params_stiffness(self) -> float:
+        """The cables' EA (N): the stiffness of a cable of unit length (:attr:`min_length`)."""
+        return float(self._stiffness(np.ones(1))[0])
+
+    def _fallback(self, reason: str) -> None:
+        """A force law could not be evaluated in its domain this step and used a fallback: ``reason``."""
+        self._fell_back = True
+        self.fallback_reason = reason
+
     @abstractmethod
     def _damping(self) -> float:
         """The cables' damping coefficient, N·s/m, for sub-step selection."""
@@ -281,6 +329,9 @@ class WinchSim(ABC):
         self._world.reset()
         self.step_count = 0
         self.saturated = 0
+        self.stopped = 0
+        self.fallbacks = 0
+        self.fallback_reason = None
         self._geometry: Geometry | None = None
         g = self._read()
         forces, l0 = self._holding(g)
@@ -367,7 +418,10 @@ class WinchSim(ABC):
         cmd = np.asarray(command, dtype=float)
         if cmd.shape != (self.robot.m,):
             raise ValueError(f"expected {self.robot.m} {self.command}, got shape {cmd.shape}")
+        self._fell_back = False
         report = self._step_tensions(cmd) if self.command == "tensions" else self._step_lengths(cmd)
+        if self._fell_back:
+            self.fallbacks += 1
         self.step_count += 1
         return report
 
@@ -394,12 +448,21 @@ class WinchSim(ABC):
         platform_sum = np.zeros(self.robot.m)
         frame_sum = np.zeros(self.robot.m)
         s = self._winch
+        top = self.robot.max_length / p.radius
         for j in range(self.substeps):
             g = self._read()
-            law = self._law(g, p.radius * s.angle, p.radius * s.speed)
+            l0 = p.radius * s.angle
+            if np.any(l0 < self.min_length):
+                short = np.flatnonzero(l0 < self.min_length)
+                self._fallback(f"cable(s) {short.tolist()} wound in to {float(l0.min()):.3g} m, below the "
+                               f"{self.min_length:.3g} m the sub-steps can follow: taken as {self.min_length:.3g} m")
+                l0 = np.maximum(l0, self.min_length)
+            law = self._law(g, l0, p.radius * s.speed)
             torque, integral, saturated = drive_torque(p, s, ref + speed_ref * (j * h), speed_ref, h)
             self.saturated += int(np.count_nonzero(saturated))
             s = drum_step(p, s, torque, law.frame, integral, h)
+            s, stopped = end_stops(s, 0.0, top)
+            self.stopped += stopped
             self._apply(g, law.forces)
             platform_sum += law.platform
             frame_sum += law.frame
