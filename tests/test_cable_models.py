@@ -33,7 +33,8 @@ from cdpr.mechanics.kinematics import inverse_kinematics
 from cdpr.mechanics.robot import Robot
 from cdpr.mechanics.rotation import rpy_to_matrix
 from cdpr.mechanics.tda import make_tda
-from cdpr.protocol import Command, ProtocolError
+from cdpr.protocol import PROTOCOL_VERSION, Command, ProtocolError
+from cdpr.protocol.session import session_info
 from cdpr_controller.core import ControllerCore, stretch_compensated_lengths
 from cdpr_sim.core import PlatformSim, make_sim
 from cdpr_sim.elastic import ElasticParams, ElasticSim, elastic_tensions, unstretched_lengths
@@ -556,7 +557,7 @@ def test_length_command_on_the_wire() -> None:
     assert Command.decode(tension_cmd.encode(), 8).kind == "tensions"
 
     def bad(expect: str | None = None, **fields: object) -> str:
-        base: dict[str, object] = {"v": 1, "step": 1, "t": 0.001}
+        base: dict[str, object] = {"v": PROTOCOL_VERSION, "step": 1, "t": 0.001}
         base.update(fields)
         with pytest.raises(ProtocolError) as err:
             Command.decode(msgpack.packb(base), cables=8, expect=expect)
@@ -610,7 +611,7 @@ def test_scenarios_choose_models_and_outputs(tmp_path: Path) -> None:
     winch = load_scenario("caroca_15kg_winch")
     assert winch.output == "lengths"
     assert winch.cable_model == "elastic"
-    info = winch.info()
+    info = session_info(winch)
     assert info["controller"]["output"] == "lengths"
     assert info["sim"]["elastic"]["EA"] == 1e6
     sim = make_sim(winch)
