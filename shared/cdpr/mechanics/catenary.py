@@ -259,12 +259,12 @@ def _guess(span: Array, rise: Array, L0: Array, w: Array, EA: Array) -> tuple[Ar
         T = EA * (chord - L0) / L0
         candidates.append((T * span / chord, T * rise / chord - 0.5 * w * L0))
         candidates.append(inextensible_catenary(span, rise, L0, w))
-        V = hanging_rod(rise, L0, w, EA)
-        H = span / (L0 / EA + L0 / np.maximum(np.abs(V), 0.5 * w * L0))
+        V_rod = hanging_rod(rise, L0, w, EA)
+        H = span / (L0 / EA + L0 / np.maximum(np.abs(V_rod), 0.5 * w * L0))
         for _ in range(6):  # span = H (L0/EA + ∫ds/T): a fixed point, ∫ds/T depends on H only through a log
-            H = H * span / _shape(H, V, L0, w, EA).span
+            H = H * span / _shape(H, V_rod, L0, w, EA).span
             H = np.where(np.isfinite(H) & (H > 0.0), H, span * w)
-        candidates.append((H, V))
+        candidates.append((H, V_rod))
         best_H, best_V = np.full_like(span, np.nan), np.full_like(span, np.nan)
         best_F = np.full_like(span, np.inf)
         for H, V in candidates:
@@ -272,8 +272,8 @@ def _guess(span: Array, rise: Array, L0: Array, w: Array, EA: Array) -> tuple[Ar
             better = np.isfinite(F) & (H > 0.0) & np.isfinite(V) & (best_F > F)
             best_H, best_V = np.where(better, H, best_H), np.where(better, V, best_V)
             best_F = np.where(better, F, best_F)
-    missing = ~np.isfinite(best_F)
-    return np.where(missing, span * w + 1e-300, best_H), np.where(missing, V, best_V)
+    missing = ~np.isfinite(best_F)  # (none of them finite: the vertical cable's V0, a small H)
+    return np.where(missing, span * w + 1e-300, best_H), np.where(missing, V_rod, best_V)
 
 
 def _minimise(span: Array, rise: Array, L0: Array, w: Array, EA: Array, H: Array, V0: Array,
