@@ -380,6 +380,44 @@ def test_in_process_session_to_mcap_alone(tmp_path: Path) -> None:
     assert sorted(by_step(topics[fox.COMMAND])) == list(range(300))
 
 
+@pytest.mark.slow
+def test_a_recorder_stopped_by_sigterm_leaves_a_complete_mcap(session_id: str, tmp_path: Path) -> None:
+    import os
+    import signal
+
+    from mcap.reader import make_reader
+
+    from conftest import processes_mentioning
+
+    path = tmp_path / "stopped.mcap"
+    run = subprocess.Popen([*CDPR, "run", "caroca_15kg", "--duration", "20", "--session", session_id, "--mcap",
+                            str(path), "--quiet"], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    try:
+        deadline = time.monotonic() + 180
+        recorder: list[int] = []
+        while time.monotonic() < deadline:  # the recorder is up and a first chunk is in the file
+            recorder = sorted(set(processes_mentioning(session_id)) & set(processes_mentioning(" recorder ")))
+            if recorder and path.exists() and path.stat().st_size > 100_000:
+                break
+            assert run.poll() is None, run.stderr.read() if run.stderr else ""
+            time.sleep(0.05)
+        assert len(recorder) == 1
+        os.kill(recorder[0], signal.SIGTERM)
+        out, _ = run.communicate(timeout=120)
+    finally:
+        if run.poll() is None:
+            run.kill()
+    summary = last_json_line(out)
+    assert summary["exit_codes"]["recorder"] == 128 + signal.SIGTERM
+    with path.open("rb") as f:
+        assert make_reader(f).get_summary() is not None  # summary and footer written: closed properly
+    topics, meta, _ = read_mcap(path)
+    steps = sorted(by_step(topics[fox.PLATFORM_STATE]))
+    assert 200 <= steps[-1] <= summary["steps"]
+    assert steps == list(range(steps[-1] + 1))  # nothing lost up to the last recorded state
+    assert meta[fox.METADATA_NAME]["scenario"] == "caroca_15kg"
+
+
 # --------------------------------------------------------------------------------------------------
 # Live: a client of Foxglove's WebSocket protocol
 

@@ -151,18 +151,47 @@ def nanoseconds(t: ArrayLike) -> NDArray[np.int64]:
     return np.rint(np.asarray(t, dtype=float) * 1e9).astype(np.int64)
 
 
+def _cells(column: Any, n: int) -> list[bytes]:
+    """The JSON text of each row of one column: (n,) numbers, booleans or strings, or (n, k) numbers."""
+    import orjson
+
+    if isinstance(column, np.ndarray) and column.dtype.kind in "fiu":
+        if column.ndim == 1:  # one orjson call for the whole column, split at the commas
+            return orjson.dumps(column.tolist())[1:-1].split(b",")
+        rows = orjson.dumps(column.reshape(n, -1).tolist())[2:-2].split(b"],[")
+        return [b"[" + r + b"]" for r in rows]
+    values = column.tolist() if isinstance(column, np.ndarray) else list(column)
+    seen: dict[Any, bytes] = {}  # booleans and strings: few distinct values
+    out = []
+    for v in values:
+        text = seen.get(v)
+        if text is None:
+            text = seen[v] = orjson.dumps(v)
+        out.append(text)
+    return out
+
+
 def json_rows(fields: Mapping[str, Any], constants: Mapping[str, Any] | None = None) -> list[bytes]:
     """One JSON object per row: ``fields`` maps a name to a column — (n,) values give a number (or bool,
     string) per row, (n, k) arrays give a k-number array — and ``constants`` adds the same fields to every
-    row. Floats are written as the shortest text that reads back as the same float64; NaN as null."""
+    row. Floats are written as the shortest text that reads back as the same float64 (``orjson``); NaN as
+    null. Each column is encoded in one call and the rows are assembled from the pieces."""
     import orjson
 
-    names = list(fields)
-    cols = [c.tolist() if isinstance(c, np.ndarray) else list(c) for c in fields.values()]
+    columns = list(fields.values())
+    n = len(columns[0])
+    if n == 0:
+        return []
+    keys = [orjson.dumps(name) for name in fields]
+    template = b"{" + b",".join(k + b":%b" for k in keys)
     if constants:
-        extra = dict(constants)
-        return [orjson.dumps({**dict(zip(names, row, strict=True)), **extra}) for row in zip(*cols, strict=True)]
-    return [orjson.dumps(dict(zip(names, row, strict=True))) for row in zip(*cols, strict=True)]
+        template += b"," + orjson.dumps(dict(constants))[1:-1]
+    template += b"}"
+    cells = [_cells(c, n) for c in columns]
+    for name, c in zip(fields, cells, strict=True):
+        if len(c) != n:
+            raise ValueError(f"{name}: expected {n} rows, got {len(c)}")
+    return [template % row for row in zip(*cells, strict=True)]
 
 
 def metadata(session: Mapping[str, Any], protocol_version: int) -> dict[str, str]:
@@ -259,10 +288,12 @@ class FoxgloveSink:
                 raise InputError(f"--mcap: cannot write {self.mcap_path}: {exc.strerror or exc}") from None
             codec = {"zstd": MCAPCompression.Zstd, "lz4": MCAPCompression.Lz4, "none": None}[compression]
             context = foxglove.Context()
-            # zstd level 1: about half the CPU of the default level 3 for a file as small (a recorder shares
-            # the machine with the loop); compression on the writer's thread, no helper threads
+            # The recorder shares the machine with the loop: zstd level 1 (half the CPU of the default level 3,
+            # a file as small), on the writer's thread (no helper threads), and no CRC over every chunk and
+            # the data section (as costly as the compression; the summary keeps its CRC)
             options = MCAPWriteOptions(compression=codec, compression_level=1 if codec is not None else 0,
-                                       profile=PROFILE, compression_threads=0)
+                                       profile=PROFILE, compression_threads=0, calculate_chunk_crcs=False,
+                                       calculate_data_section_crc=False)
             self.writer = foxglove.open_mcap(self.mcap_path, allow_overwrite=True, context=context,
                                              writer_options=options)
             self.outputs.append(_Output(context, schemas))
