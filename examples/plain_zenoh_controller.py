@@ -86,9 +86,14 @@ def main():
     conf.insert_json5("connect/timeout_ms", '{"client": 30000}')  # the router may start after us
     conf.insert_json5("connect/retry", '{"period_init_ms": 100, "period_max_ms": 1000}')
     stop = threading.Event()
-    for sig in (signal.SIGINT, signal.SIGTERM):
-        signal.signal(sig, lambda *_: stop.set())
     inbox = queue.SimpleQueue()
+
+    def on_signal(*_):  # also wake the wait below: a signal alone may leave it waiting for the next message
+        stop.set()
+        inbox.put(None)
+
+    for sig in (signal.SIGINT, signal.SIGTERM):
+        signal.signal(sig, on_signal)
     with zenoh.open(conf) as session:
         info = None  # 1. the robot and dt, from the session's clock (retried until it answers)
         while info is None and not stop.is_set():
@@ -112,9 +117,12 @@ def main():
         setpoints, waiting, answered, code = {}, None, -1, 130
         while not stop.is_set():  # 3. answer state k once setpoint k is there; answer a repeated state again
             try:
-                name, payload = inbox.get(timeout=0.2)
+                item = inbox.get(timeout=0.2)
             except queue.Empty:
                 continue
+            if item is None:
+                continue
+            name, payload = item
             msg = msgpack.unpackb(payload)
             if name == "clock/status":
                 if msg["state"] in ("finished", "aborted"):

@@ -4,6 +4,9 @@ protocol's fast decoding, and the service dispatcher that runs handlers on Zenoh
 
 from __future__ import annotations
 
+import signal
+import subprocess
+import sys
 import threading
 import time
 
@@ -231,3 +234,50 @@ def test_inbox_handler_runs_on_zenohs_thread_message_after_message() -> None:
     assert got == [bytes([i]) for i in range(50)]
     # a thread Python did not start (Zenoh's own): the binding's indirect mode would show a "Thread"
     assert set(threads) == {"_DummyThread"}
+
+
+_STORM = """
+import os, signal, sys, threading, time
+from cdpr.runtime.transport import Inbox, StopFlag
+inbox, stop = Inbox(), StopFlag().install()
+if sys.argv[1] == "wake":
+    stop.on_set(inbox.wake)
+signal.signal(signal.SIGUSR2, lambda *_: sum(range(200_000)))  # a handler that takes a few ms
+def storm():
+    while True:
+        time.sleep(0.037)
+        os.kill(os.getpid(), signal.SIGUSR2)
+threading.Thread(target=storm, daemon=True).start()
+print("ready", flush=True)
+while not stop:
+    for _ in inbox.drain(0.1):
+        pass
+print("stopped", flush=True)
+"""
+
+
+@pytest.mark.parametrize("wake", ["wake", "no-wake"])
+def test_a_stop_signal_ends_the_inbox_wait_also_amid_other_signals(wake: str) -> None:
+    """CPython 3.11's ``SimpleQueue.get(timeout=…)`` interrupted by a signal whose handler returns can wait
+    for the next item with no timeout at all: a queued service waiting for messages that no longer come
+    (the recorder after the loop stopped) then ignored SIGTERM. ``Inbox.wake`` (which ``serve`` hooks to
+    the stop flag) ends the wait. Without it the same process is seen stuck (the bug is still there)."""
+    proc = subprocess.Popen([sys.executable, "-c", _STORM, wake], stdout=subprocess.PIPE, text=True)
+    try:
+        assert proc.stdout is not None
+        assert proc.stdout.readline() == "ready\n"
+        time.sleep(1.0)  # ~27 signals: the wait is stuck after the first few (without the wake)
+        proc.send_signal(signal.SIGTERM)
+        try:
+            out, _ = proc.communicate(timeout=5.0)
+            stopped = "stopped" in out
+        except subprocess.TimeoutExpired:
+            stopped = False
+    finally:
+        proc.kill()
+        proc.wait()
+    if wake == "wake":
+        assert stopped
+    else:
+        # the reason for Inbox.wake: when this fails, CPython no longer has the bug and the wake could go
+        assert not stopped, "SimpleQueue.get no longer hangs after a signal: Inbox.wake may be unnecessary"

@@ -152,7 +152,7 @@ def test_sigterm_to_one_service_stops_the_whole_run(session_id: str, service: st
     # the recording of the interrupted run is complete and valid
     rerun = [recording.rerun_binary() or "rerun", "rrd", "verify", str(rrd)]
     verify = subprocess.run(rerun, capture_output=True, text=True, timeout=120, check=False)
-    assert verify.returncode == 0, verify.stderr
+    assert verify.returncode == 0, verify.stderr + "\nthe run's log:\n" + "".join(progress)
 
 
 def test_start_order_does_not_change_the_states(session_id: str) -> None:

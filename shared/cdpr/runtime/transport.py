@@ -137,6 +137,9 @@ class Event:
     received: float  # time.monotonic() at receipt, for statistics only (never for the simulation)
 
 
+_WAKE = Event("wake", b"", "", 0.0)  # put by Inbox.wake: ends a wait, is never handed out
+
+
 class _ThreadStatePin(threading.local):
     """Gives the Zenoh thread that runs a callback a Python thread state for the rest of its life.
 
@@ -198,11 +201,18 @@ class Inbox:
             key, zenoh.handlers.Callback(on_token, indirect=self._indirect), history=True
         )
 
+    def wake(self) -> None:
+        """End a wait in :meth:`get` now (it returns None, as on a timeout). Safe in a signal handler:
+        a signal that interrupts ``SimpleQueue.get`` near the end of its timeout can leave it waiting
+        for the next item with no timeout at all (CPython 3.11), so a stop must put one in."""
+        self._q.put(_WAKE)
+
     def get(self, timeout: float | None) -> Event | None:
         try:
-            return self._q.get(timeout=timeout) if timeout is None or timeout > 0 else self._q.get_nowait()
+            ev = self._q.get(timeout=timeout) if timeout is None or timeout > 0 else self._q.get_nowait()
         except queue.Empty:
             return None
+        return None if ev is _WAKE else ev
 
     def drain(self, timeout: float) -> Iterator[Event]:
         """Wait up to ``timeout`` for one event, then yield it and everything already queued."""

@@ -229,6 +229,7 @@ def run_session(
         argv["recorder"] = rec
     with open_session(conf, "cdpr run") as session:
         inbox = Inbox()
+        stop.on_set(inbox.wake)
         tape = Tape()
         subs = [
             tape.subscribe(session, keys.telemetry, "telemetry"),
