@@ -436,3 +436,25 @@ def test_cli_case_caroca_static_150kg(method: str) -> None:
     assert np.all(res.tensions <= robot.tmax)
     # The platform hangs still: the cables carry its weight and no net moment.
     np.testing.assert_allclose(W @ res.tensions, [0, 0, 150.0 * 9.81, 0, 0, 0], atol=1e-6)
+
+
+def test_the_cholesky_routines_load_without_scipy_linalg() -> None:
+    """The first solve loads LAPACK's dpotrf/dpotrs alone (scipy.linalg costs ~0.5 s to import: a third of a
+    session's start-up); they are scipy's own wrappers, which a later ``import scipy.linalg`` shares."""
+    import subprocess
+    import sys
+
+    probe = (
+        "import sys, numpy as np\n"
+        "from cdpr.mechanics.tda import base\n"
+        "lapack = base._lapack()\n"
+        "loaded = [m for m in sys.modules if m.startswith('scipy.linalg')]\n"
+        "assert loaded == ['scipy.linalg._flapack'], loaded\n"
+        "from scipy.linalg import lapack as full\n"
+        "assert full.dpotrf is lapack.dpotrf and full.dpotrs is lapack.dpotrs\n"
+        "A = np.random.default_rng(1).standard_normal((6, 8))\n"
+        "L, info = lapack.dpotrf(A @ A.T, lower=1, clean=0)\n"
+        "y, info2 = lapack.dpotrs(L, np.ones(6), lower=1)\n"
+        "assert info == info2 == 0 and np.allclose(A @ A.T @ y, 1.0)\n"
+    )
+    subprocess.run([sys.executable, "-c", probe], check=True, timeout=60)

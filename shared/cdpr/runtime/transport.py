@@ -75,6 +75,10 @@ def zenoh_config(
         conf.insert_json5("listen/endpoints", json.dumps(list(listen)))
     if connect or listen:
         conf.insert_json5("scouting/multicast/enabled", "false")
+        if mode == "router" and not path:
+            # Zenoh's open() waits scouting/delay (500 ms) for peers found by scouting; with multicast off
+            # a router finds nobody, it is connected to: no reason to wait before it can serve
+            conf.insert_json5("scouting/delay", "0")
     return conf
 
 

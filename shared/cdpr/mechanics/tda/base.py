@@ -29,14 +29,51 @@ _LAPACK: Any = None
 
 
 def _lapack() -> Any:
-    """scipy.linalg.lapack, imported on first use: importing this module costs no scipy (the clock and the
-    sim load scenarios that name a method without ever solving)."""
+    """LAPACK's Cholesky routines (``dpotrf``, ``dpotrs``: scipy's Fortran wrappers), loaded on first use:
+    importing this module costs no scipy (the clock and the sim load scenarios that name a method without
+    ever solving).
+
+    ``import scipy.linalg`` costs ~0.5 s of CPU (its array-API layer imports numpy.testing and numpy.f2py),
+    the largest part of a controller's start-up, and the two routines need none of it: the extension module
+    that holds them, ``scipy.linalg._flapack``, is loaded by itself and registered under its own name, so
+    that a later ``import scipy.linalg`` (qpsolvers, scipy.sparse) takes the same module. Where that is not
+    possible (another layout of scipy), the normal import."""
     global _LAPACK
     if _LAPACK is None:
-        from scipy.linalg import lapack
+        _LAPACK = _load_flapack()
+        if _LAPACK is None:
+            from scipy.linalg import lapack
 
-        _LAPACK = lapack
+            _LAPACK = lapack
     return _LAPACK
+
+
+def _load_flapack() -> Any:
+    import importlib.machinery
+    import importlib.util
+    import sys
+    from pathlib import Path
+
+    name = "scipy.linalg._flapack"
+    if name in sys.modules:
+        return sys.modules[name]
+    try:
+        import scipy
+
+        folder = Path(scipy.__file__).parent / "linalg"
+        path = next((folder / f"_flapack{s}" for s in importlib.machinery.EXTENSION_SUFFIXES
+                     if (folder / f"_flapack{s}").is_file()), None)
+        spec = importlib.util.spec_from_file_location(name, path) if path is not None else None
+        if spec is None or spec.loader is None:
+            return None
+        module = importlib.util.module_from_spec(spec)
+        spec.loader.exec_module(module)
+    except Exception:  # an unexpected layout or loader: the normal import instead
+        return None
+    if not (hasattr(module, "dpotrf") and hasattr(module, "dpotrs")):
+        return None
+    sys.modules[name] = module
+    return module
 
 
 @dataclass(frozen=True)
