@@ -132,7 +132,9 @@ def _process_cpu(root: int) -> dict[str, float]:
                 argv = f.read().split("\0")
         except (OSError, IndexError):
             continue
-        role = argv[argv.index("cdpr") + 1] if "cdpr" in argv[:-1] else "other"
+        # `python -m cdpr run …` is "run"; its services are `python -m cdpr.runtime NAME …`
+        launcher = next((a for a in ("cdpr", "cdpr.runtime") if a in argv[:-1]), None)
+        role = argv[argv.index(launcher) + 1] if launcher is not None else "other"
         out[role] = out.get(role, 0.0) + (int(fields[11]) + int(fields[12])) / tick
     return out
 
@@ -202,12 +204,14 @@ def _run_sessions(args_list: Sequence[Sequence[str]], tag: str, timeout: float) 
 LOOP_VARIANTS: dict[str, tuple[str, ...]] = {
     "multi_process": (),  # every node its own process, no recording
     "multi_process_recording": ("--rrd", "{tmp}/bench.rrd"),  # and the recorder writing an .rrd
+    # the recorder writing an .rrd and an .mcap (Foxglove schemas) from the same batches
+    "multi_process_recording_both": ("--rrd", "{tmp}/bench_both.rrd", "--mcap", "{tmp}/bench_both.mcap"),
     "in_process": ("--in-process",),  # every node in one process (composition), no recording
 }
 
 
 def bench_loop_variants(scenario: str, duration: float | None, repeats: int, monolithic: float) -> dict[str, Any]:
-    """The distributed loop in each of :data:`LOOP_VARIANTS`, interleaved (A B C A B C …) so that a
+    """The distributed loop in each of :data:`LOOP_VARIANTS`, interleaved (A B C D A B C D …) so that a
     change in the machine's load hits every variant alike; each with its ratio to the monolithic loop."""
     extra = [] if duration is None else ["--duration", repr(duration)]
     runs: dict[str, list[dict[str, Any]]] = {name: [] for name in LOOP_VARIANTS}

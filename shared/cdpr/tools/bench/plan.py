@@ -5,7 +5,8 @@ from __future__ import annotations
 import sys
 from dataclasses import dataclass
 
-BENCH_VERSION = 2  # 2: loop variants (recording, in-process), deliveries, start-up
+BENCH_VERSION = 3  # 2: loop variants (recording, in-process), deliveries, start-up; 3: the recorder writing
+# an .rrd and an .mcap (loops.multi_process_recording_both, loops.recording_both_cost, its target)
 
 
 @dataclass(frozen=True)
