@@ -41,7 +41,6 @@ PLANNED_PATH_POINTS = 200
 
 class RecorderNode(Node):
     name = "recorder"
-    exit_at_once = False  # Rerun's and the MCAP writer's own exit hooks run
 
     def __init__(
         self,

@@ -12,7 +12,6 @@ from __future__ import annotations
 
 import argparse
 import math
-import os
 import sys
 from collections.abc import Sequence
 from typing import TYPE_CHECKING, NoReturn
@@ -95,9 +94,4 @@ def node_main(name: str, argv: Sequence[str] | None = None) -> NoReturn:
             set_realtime_priority(args.rt_priority)  # before Zenoh's threads exist: they inherit it
     except InputError as exc:
         _fail(str(exc))
-    code = serve(node, conf)
-    if node.exit_at_once:  # everything is closed: skip the interpreter's teardown
-        sys.stdout.flush()
-        sys.stderr.flush()
-        os._exit(code)
-    sys.exit(code)
+    sys.exit(serve(node, conf))

@@ -58,10 +58,6 @@ class Node:
     publishes: tuple[str, ...] = ()
     # What this node checks of its scenario when it loads it (cdpr.config.scenario.load_scenario).
     scenario_checks: tuple[str, ...] = ()
-    # As its own process (python -m cdpr_<name>): leave at once once served and closed, without the
-    # interpreter's teardown (~0.1-0.2 s of freeing modules: the launcher waits for every service to
-    # exit). False for a node whose libraries finish their work at exit (the recorder's file sinks).
-    exit_at_once = True
 
     def __init__(self, keys: Keys) -> None:
         self.keys = keys
