@@ -9,12 +9,36 @@ It listens on 127.0.0.1 unless told otherwise.
 
 from __future__ import annotations
 
+import threading
+import time
 from typing import Any
 
 from cdpr.errors import InputError
 
 DEFAULT_PORT = 8765  # Foxglove's usual WebSocket port
 DEFAULT_HOST = "127.0.0.1"
+LINGER = 1.0  # seconds the server stays up after the last batch while a client is subscribed: its queue
+#              of messages is sent by the server's own threads, and stopping drops what is still queued
+
+
+class _Subscriptions:
+    """The server's listener: which (client, channel) pairs are subscribed right now."""
+
+    def __init__(self) -> None:
+        self.lock = threading.Lock()
+        self.pairs: set[tuple[int, int]] = set()
+
+    def on_subscribe(self, client: Any, channel: Any) -> None:
+        with self.lock:
+            self.pairs.add((client.id, channel.id))
+
+    def on_unsubscribe(self, client: Any, channel: Any) -> None:
+        with self.lock:
+            self.pairs.discard((client.id, channel.id))
+
+    def __bool__(self) -> bool:
+        with self.lock:
+            return bool(self.pairs)
 
 
 class LiveServer:
@@ -29,10 +53,11 @@ class LiveServer:
             raise InputError(f"--foxglove: port must be between 0 and 65535, got {port}")
         self.host = host
         self.context = foxglove.Context()
+        self.subscriptions = _Subscriptions()
         try:
             self.server: Any = foxglove.start_server(
                 name=name, host=host, port=port, context=self.context, capabilities=[Capability.Time],
-                message_backlog_size=backlog,
+                message_backlog_size=backlog, server_listener=self.subscriptions,
             )
         except Exception as exc:  # the SDK raises RuntimeError for a port in use or an unknown host
             first = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
@@ -47,5 +72,8 @@ class LiveServer:
     def broadcast_time(self, ns: int) -> None:
         self.server.broadcast_time(int(ns))
 
-    def close(self) -> None:
+    def close(self, linger: float = LINGER) -> None:
+        """Stop the server; a subscribed client first gets ``linger`` seconds to receive what is queued."""
+        if self.subscriptions:
+            time.sleep(linger)
         self.server.stop()

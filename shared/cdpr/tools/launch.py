@@ -94,7 +94,7 @@ class Children:
                     p.send_signal(sig)
             deadline = time.monotonic() + grace
             while time.monotonic() < deadline and any(p.poll() is None for p in self.procs.values()):
-                time.sleep(0.02)
+                time.sleep(0.005)
             if all(p.poll() is not None for p in self.procs.values()):
                 break
         for p in self.procs.values():

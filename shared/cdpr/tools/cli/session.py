@@ -2,9 +2,10 @@
 
 from __future__ import annotations
 
+import os
 import sys
 from collections.abc import Callable
-from typing import Any
+from typing import Any, NoReturn
 
 import click
 import numpy as np
@@ -85,7 +86,19 @@ def run(**kw: Any) -> None:
     """
     from cdpr.tools.launch import run_session
 
-    sys.exit(run_session(_load(kw.pop("scenario"), kw.pop("duration")), **kw))
+    in_process = kw["in_process"]
+    _leave(run_session(_load(kw.pop("scenario"), kw.pop("duration")), **kw), at_once=not in_process)
+
+
+def _leave(code: int, at_once: bool) -> NoReturn:
+    """Exit with ``code``; ``at_once``: without the interpreter's teardown (~0.1 s of freeing modules), for
+    a launcher whose children have all exited (nobody left for its router to serve) and that holds no file
+    sink of its own (not --in-process)."""
+    if at_once:
+        sys.stdout.flush()
+        sys.stderr.flush()
+        os._exit(code)
+    sys.exit(code)
 
 
 @cli.command()
@@ -101,7 +114,8 @@ def up(**kw: Any) -> None:
     """Run the services of SCENARIO except --without ones, and wait for those to join over Zenoh."""
     from cdpr.tools.launch import run_session
 
-    sys.exit(run_session(_load(kw.pop("scenario"), kw.pop("duration")), **kw))
+    sys.exit(run_session(_load(kw.pop("scenario"), kw.pop("duration")), **kw))  # the router may still be
+    # forwarding the end to remote participants: the normal exit
 
 
 # ------------------------------------------------------------------------------------------------
