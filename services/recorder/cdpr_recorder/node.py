@@ -341,6 +341,8 @@ class RecorderNode(Node):
                     log(self.name, f"a viewer did not get everything: {problem}")
         finally:
             try:
+                if self.live is not None:
+                    self.live.linger()  # a live viewer receives the end before its channels close
                 if self.fox is not None:
                     self.fox.close()
             finally:

@@ -18,7 +18,8 @@ from cdpr.errors import InputError
 DEFAULT_PORT = 8765  # Foxglove's usual WebSocket port
 DEFAULT_HOST = "127.0.0.1"
 LINGER = 1.0  # seconds the server stays up after the last batch while a client is subscribed: its queue
-#              of messages is sent by the server's own threads, and stopping drops what is still queued
+#              of messages is sent by the server's own threads, and closing the channels or stopping the
+#              server drops what is still queued
 
 
 class _Subscriptions:
@@ -72,8 +73,11 @@ class LiveServer:
     def broadcast_time(self, ns: int) -> None:
         self.server.broadcast_time(int(ns))
 
-    def close(self, linger: float = LINGER) -> None:
-        """Stop the server; a subscribed client first gets ``linger`` seconds to receive what is queued."""
+    def linger(self, seconds: float = LINGER) -> None:
+        """Before the end (channels closed, server stopped): a subscribed client gets ``seconds`` to receive
+        what is still queued for it."""
         if self.subscriptions:
-            time.sleep(linger)
+            time.sleep(seconds)
+
+    def close(self) -> None:
         self.server.stop()
