@@ -16,7 +16,7 @@ from cdpr.config.scenario import Scenario
 from cdpr.mechanics.rotation import matrix_to_quat
 from cdpr.protocol import Command, Keys, Setpoint, State
 from cdpr.protocol.pairing import Pairing
-from cdpr.runtime.service import Node
+from cdpr.runtime.service import Node, pair
 from cdpr.runtime.transport import Event, Inbox, log
 from cdpr_controller.core import ControllerCore
 
@@ -53,13 +53,7 @@ class ControllerNode(Node):
         return []
 
     def handle(self, event: Event) -> None:
-        if event.kind == "state":
-            state = self.decode(event, self.m)
-            due = None if state is None else self.pairing.on_state(state)
-        else:
-            block = self.decode(event)
-            due = None if block is None else self.pairing.on_setpoints(block)
-        if due is not None:
+        if (due := pair(self, self.pairing, event, self.m)) is not None:
             self.answer(*due)
 
     def answer(self, state: State, setpoint: Setpoint) -> None:

@@ -46,7 +46,7 @@ from cdpr.errors import InputError
 from cdpr.protocol import Command, Keys, Setpoint, State, Status
 from cdpr.protocol.pairing import Pairing
 from cdpr.protocol.session import SessionInfo
-from cdpr.runtime.service import Node, serve
+from cdpr.runtime.service import Node, pair, serve
 from cdpr.runtime.transport import Event, Inbox, RateLimitedLog, StopFlag, log, zenoh_config
 
 INFO_RETRY = 0.5  # seconds between two `get`s of session/info while no clock answers
@@ -251,13 +251,7 @@ class _ControllerNode(Node):
 
     def handle(self, event: Event) -> None:
         self.last_heard = event.received
-        if event.kind == "state":
-            state = self.decode(event, self.m)
-            due = None if state is None else self.pairing.on_state(state)
-        else:
-            block = self.decode(event)
-            due = None if block is None else self.pairing.on_setpoints(block)
-        if due is not None:
+        if (due := pair(self, self.pairing, event, self.m)) is not None:
             self.answer(*due)
 
     def answer(self, state: State, setpoint: Setpoint) -> None:

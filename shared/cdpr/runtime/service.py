@@ -42,6 +42,8 @@ from cdpr.runtime.transport import PUBLISH_OPTS, Event, Inbox, RateLimitedLog, S
 
 if TYPE_CHECKING:
     from cdpr.config.scenario import Scenario
+    from cdpr.protocol import Setpoint, State
+    from cdpr.protocol.pairing import Pairing
 
 PARENT_ENV = "CDPR_PARENT_PID"
 
@@ -129,6 +131,16 @@ class Node:
         """Last words before the session closes (flush files, print statistics)."""
 
     idle_period = 0.1
+
+
+def pair(node: Node, pairing: Pairing, event: Event, m: int | None) -> tuple[State, Setpoint] | None:
+    """A controller's ``state`` or ``setpoints`` event, decoded (a bad one counted and dropped) and given to
+    ``pairing``: the (state, setpoint) pair it makes due, if any (the controller node and the SDK's)."""
+    if event.kind == "state":
+        state = node.decode(event, m)
+        return None if state is None else pairing.on_state(state)
+    block = node.decode(event)
+    return None if block is None else pairing.on_setpoints(block)
 
 
 def set_realtime_priority(priority: int, inherited: bool = True) -> None:
