@@ -375,7 +375,8 @@ def serve(node: Node, conf: zenoh.Config, stop: StopFlag | None = None) -> int:
         dispatcher = _Dispatcher(node, on_event, wake, stop) if node.direct else None
         stop.on_set(wake.set)  # a signal wakes the main thread at once
         inbox = Inbox(dispatcher)
-        stop.on_set(inbox.wake)  # (a queued node) ends the wait for the next event
+        if dispatcher is None:
+            stop.on_set(inbox.wake)  # a queued node: ends the main thread's wait for the next event
         host = _Host(node, session, inbox, parent)
         _freeze()
         try:

@@ -207,7 +207,7 @@ class Inbox:
 
     def wake(self) -> None:
         """End a wait in :meth:`get` now (it returns None, as on a timeout). Safe in a signal handler:
-        a signal that interrupts ``SimpleQueue.get`` near the end of its timeout can leave it waiting
+        a signal whose handler returns can leave an interrupted ``SimpleQueue.get(timeout=…)`` waiting
         for the next item with no timeout at all (CPython 3.11), so a stop must put one in."""
         self._q.put(_WAKE)
 
