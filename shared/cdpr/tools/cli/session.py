@@ -114,8 +114,8 @@ def up(**kw: Any) -> None:
     """Run the services of SCENARIO except --without ones, and wait for those to join over Zenoh."""
     from cdpr.tools.launch import run_session
 
-    sys.exit(run_session(_load(kw.pop("scenario"), kw.pop("duration")), **kw))  # the router may still be
-    # forwarding the end to remote participants: the normal exit
+    # the normal exit: the router may still be forwarding the end to remote participants
+    sys.exit(run_session(_load(kw.pop("scenario"), kw.pop("duration")), **kw))
 
 
 # ------------------------------------------------------------------------------------------------
