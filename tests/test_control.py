@@ -51,8 +51,8 @@ def test_gyroscopic_term_is_compensated() -> None:
     twist = np.array([0, 0, 0, 1.0, 0.0, 0.5])
     w = feedback_linearisation(robot, np.zeros(3), np.eye(3), twist, np.zeros(3), np.eye(3), twist, np.zeros(6),
                                Gains.of(0.0, 0.0))
-    I = np.diag([6.5, 20.0, 22.5])
-    assert np.allclose(w[3:], np.cross(twist[3:], I @ twist[3:]), atol=1e-12)
+    J = np.diag([6.5, 20.0, 22.5])
+    assert np.allclose(w[3:], np.cross(twist[3:], J @ twist[3:]), atol=1e-12)
 
 
 @pytest.mark.parametrize("variant", ["6dof", "3dof"])

@@ -87,13 +87,11 @@ def test_links_and_joints_match_the_robot_file(name: str) -> None:
     np.testing.assert_allclose(R, robot.home_rotation, atol=1e-12)
     assert float(platform.findtext("inertial/mass")) == robot.mass
     np.testing.assert_array_equal(nums(platform.find("inertial/pose")), np.zeros(6))
-    I = {
+    moments = {
         k: float(platform.findtext(f"inertial/inertia/{k}"))
         for k in ("ixx", "ixy", "ixz", "iyy", "iyz", "izz")
     }
-    full = np.array(
-        [[I["ixx"], I["ixy"], I["ixz"]], [I["ixy"], I["iyy"], I["iyz"]], [I["ixz"], I["iyz"], I["izz"]]]
-    )
+    full = np.array([[moments[f"i{a}{b}" if f"i{a}{b}" in moments else f"i{b}{a}"] for b in "xyz"] for a in "xyz"])
     np.testing.assert_array_equal(full, robot.inertia)
     geometry = platform.find(f"visual/geometry/{robot.shape.type}")
     assert geometry is not None

@@ -62,14 +62,14 @@ class PlatformSpec(_Strict):
     @field_validator("inertia")
     @classmethod
     def _inertia_spd(cls, v: list[float] | list[list[float]]) -> list[float] | list[list[float]]:
-        I = np.asarray(v, dtype=float)
-        if I.shape == (3,):
-            I = np.diag(I)
-        if I.shape != (3, 3):
-            raise ValueError(f"must be 3 principal moments or a 3×3 matrix (got shape {I.shape})")
-        if not np.allclose(I, I.T, atol=1e-9):
+        J = np.asarray(v, dtype=float)
+        if J.shape == (3,):
+            J = np.diag(J)
+        if J.shape != (3, 3):
+            raise ValueError(f"must be 3 principal moments or a 3×3 matrix (got shape {J.shape})")
+        if not np.allclose(J, J.T, atol=1e-9):
             raise ValueError("must be symmetric")
-        if np.linalg.eigvalsh(I).min() <= 0.0:
+        if np.linalg.eigvalsh(J).min() <= 0.0:
             raise ValueError("must be positive definite")
         return v
 

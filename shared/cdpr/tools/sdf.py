@@ -100,7 +100,7 @@ def _sub(parent: ET.Element, tag: str, text: str | None = None, **attrib: str) -
 
 
 def _inertial(link: ET.Element, mass: float, inertia: ArrayLike) -> None:
-    I = np.asarray(inertia, dtype=float)
+    J = np.asarray(inertia, dtype=float)
     el = _sub(link, "inertial")
     _sub(el, "pose", "0 0 0 0 0 0")
     _sub(el, "mass", _num(mass))
@@ -113,7 +113,7 @@ def _inertial(link: ET.Element, mass: float, inertia: ArrayLike) -> None:
         "iyz": (1, 2),
         "izz": (2, 2),
     }.items():
-        _sub(block, name, _num(I[i, j]))
+        _sub(block, name, _num(J[i, j]))
 
 
 def _geometry(parent: ET.Element, kind: str, size: tuple[float, ...]) -> None:
