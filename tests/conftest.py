@@ -5,6 +5,7 @@ from __future__ import annotations
 import contextlib
 import json
 import os
+import signal
 import socket
 import subprocess
 import sys
@@ -16,6 +17,11 @@ from pathlib import Path
 import pytest
 
 CDPR = [sys.executable, "-m", "cdpr"]
+ROOT = Path(__file__).resolve().parent.parent
+DOCKER = ROOT / "docker"  # the compose files that test_compose, test_acl and test_docker run
+COMPOSE = DOCKER / "compose.yaml"
+SECURE = DOCKER / "compose.secure.yaml"
+REALTIME = DOCKER / "compose.realtime.yaml"
 
 
 def free_port() -> int:
@@ -58,6 +64,29 @@ def wait_no_processes(text: str, timeout: float = 5.0) -> list[int]:
     while (left := processes_mentioning(text)) and time.monotonic() < deadline:
         time.sleep(0.05)
     return left
+
+
+def sigterm_the_recorder(run: subprocess.Popen[str], session_id: str, path: Path, min_bytes: int,
+                         timeout: float) -> tuple[str, str]:
+    """Once the recorder of ``run`` (a ``cdpr run`` of ``session_id``) is up and ``path`` holds more than
+    ``min_bytes``, send it SIGTERM; return the run's stdout and stderr (the run is killed if it outlives
+    the test)."""
+    try:
+        deadline = time.monotonic() + timeout
+        recorder: list[int] = []
+        while time.monotonic() < deadline:
+            recorder = sorted(set(processes_mentioning(session_id)) & set(processes_mentioning(" recorder ")))
+            if recorder and path.exists() and path.stat().st_size > min_bytes:
+                break
+            assert run.poll() is None, run.stderr.read() if run.stderr else ""
+            time.sleep(0.05)
+        assert len(recorder) == 1
+        os.kill(recorder[0], signal.SIGTERM)
+        out, err = run.communicate(timeout=120)
+    finally:
+        if run.poll() is None:
+            run.kill()
+    return out, err
 
 
 @pytest.fixture

@@ -28,13 +28,8 @@ import pytest
 import yaml
 import zenoh
 
-from conftest import free_port
+from conftest import COMPOSE, DOCKER, REALTIME, ROOT, SECURE, free_port
 
-ROOT = Path(__file__).resolve().parent.parent
-DOCKER = ROOT / "docker"
-COMPOSE = DOCKER / "compose.yaml"
-SECURE = DOCKER / "compose.secure.yaml"
-REALTIME = DOCKER / "compose.realtime.yaml"
 EXAMPLE = ROOT / "examples" / "remote_controller.py"
 SESSION_SERVICES = ("clock", "sim", "trajectory", "recorder")
 LOOP_SERVICES = ("clock", "sim", "trajectory", "controller")  # the lock-step loop (compose.realtime.yaml)

@@ -27,15 +27,10 @@ from pathlib import Path
 
 import pytest
 
-from conftest import free_port
+from conftest import COMPOSE, REALTIME, ROOT, SECURE, free_port
 
 pytestmark = pytest.mark.docker
 
-ROOT = Path(__file__).resolve().parent.parent
-DOCKER = ROOT / "docker"
-COMPOSE = DOCKER / "compose.yaml"
-SECURE = DOCKER / "compose.secure.yaml"
-REALTIME = DOCKER / "compose.realtime.yaml"
 EXAMPLE = ROOT / "examples" / "remote_controller.py"
 BASE = os.environ.get("CDPR_BASE") or "python:3.11-slim"
 IMAGES = ("cdpr:stack", "cdpr:sim", "cdpr:recorder")

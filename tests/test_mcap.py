@@ -28,7 +28,7 @@ from cdpr.protocol import PROTOCOL_VERSION, Command, Sensors, Setpoint, State, S
 from cdpr.recording import mcap as fox
 from cdpr.tools.metrics import RunMetrics
 from cdpr_recorder.core import Params, RecorderCore
-from conftest import CDPR, cdpr, free_port, last_json_line
+from conftest import CDPR, cdpr, free_port, last_json_line, sigterm_the_recorder
 
 PER_STEP = (fox.PLATFORM_STATE, fox.LENGTHS, fox.TENSIONS, fox.SETPOINT, fox.ERROR, fox.COMMAND)
 
@@ -382,31 +382,14 @@ def test_in_process_session_to_mcap_alone(tmp_path: Path) -> None:
 
 @pytest.mark.slow
 def test_a_recorder_stopped_by_sigterm_leaves_a_complete_mcap(session_id: str, tmp_path: Path) -> None:
-    import os
     import signal
 
     from mcap.reader import make_reader
 
-    from conftest import processes_mentioning
-
     path = tmp_path / "stopped.mcap"
     run = subprocess.Popen([*CDPR, "run", "caroca_15kg", "--duration", "20", "--session", session_id, "--mcap",
                             str(path), "--quiet"], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
-    try:
-        deadline = time.monotonic() + 180
-        recorder: list[int] = []
-        while time.monotonic() < deadline:  # the recorder is up and a first chunk is in the file
-            recorder = sorted(set(processes_mentioning(session_id)) & set(processes_mentioning(" recorder ")))
-            if recorder and path.exists() and path.stat().st_size > 100_000:
-                break
-            assert run.poll() is None, run.stderr.read() if run.stderr else ""
-            time.sleep(0.05)
-        assert len(recorder) == 1
-        os.kill(recorder[0], signal.SIGTERM)
-        out, _ = run.communicate(timeout=120)
-    finally:
-        if run.poll() is None:
-            run.kill()
+    out, _ = sigterm_the_recorder(run, session_id, path, 100_000, timeout=180)
     summary = last_json_line(out)
     assert summary["exit_codes"]["recorder"] == 128 + signal.SIGTERM
     with path.open("rb") as f:

@@ -5,13 +5,11 @@ from __future__ import annotations
 
 import json
 import math
-import os
 import random
 import signal
 import struct
 import subprocess
 import sys
-import time
 import uuid
 from collections.abc import Iterator
 from pathlib import Path
@@ -29,7 +27,7 @@ from cdpr.mechanics.rotation import matrix_to_quat, orientation_error, quat_to_m
 from cdpr.protocol import Command, Setpoint, State, Status
 from cdpr.tools.metrics import RunMetrics
 from cdpr_recorder.core import Params, RecorderCore, flatten_stats, orientation_errors
-from conftest import CDPR, cdpr, last_json_line, processes_mentioning, wait_no_processes
+from conftest import CDPR, cdpr, last_json_line, sigterm_the_recorder, wait_no_processes
 
 # --------------------------------------------------------------------------------------------------
 # Pure helpers
@@ -521,21 +519,7 @@ def test_a_recorder_stopped_by_sigterm_leaves_a_readable_file(session_id: str, t
         stderr=subprocess.PIPE,
         text=True,
     )
-    try:
-        deadline = time.monotonic() + 120
-        recorder: list[int] = []
-        while time.monotonic() < deadline:  # wait for the recorder and a few batches in the file
-            recorder = sorted(set(processes_mentioning(session_id)) & set(processes_mentioning(" recorder ")))
-            if recorder and rrd.exists() and rrd.stat().st_size > 500_000:
-                break
-            assert run.poll() is None, run.stderr.read() if run.stderr else ""
-            time.sleep(0.05)
-        assert len(recorder) == 1
-        os.kill(recorder[0], signal.SIGTERM)
-        out, err = run.communicate(timeout=120)
-    finally:
-        if run.poll() is None:
-            run.kill()
+    out, err = sigterm_the_recorder(run, session_id, rrd, 500_000, timeout=120)
     summary = last_json_line(out)
     assert summary["exit_codes"]["recorder"] == 128 + signal.SIGTERM
     assert summary["exit_ok"] is False
