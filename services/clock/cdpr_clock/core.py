@@ -3,11 +3,20 @@
 Step k is *complete* when the sim has published its state k+1; the clock hears of it through the sim's
 telemetry blocks. Step k (k > 0; tick 0 starts the run) may be granted once the sim has reached step
 k − ``lookahead``. In ``fast`` mode one tick grants every step up to that limit (a window: one message
-for many steps); in ``realtime`` mode tick k grants step k alone, at its wall-clock deadline t₀ + k·dt,
-and a tick issued more than dt after its deadline is counted late. A tick that reaches the limit asks
-the sim for a report once it is done (``flush``), so the clock never waits for a block that is not due.
+for many steps); in ``realtime`` mode tick k grants step k alone, at its wall-clock deadline
+t₁ + (k − 1)·dt (t₁: the arrival of state 1, see the handshake below), and a tick issued more than dt
+after its deadline is counted late. A tick that reaches the limit asks the sim for a report once it is
+done (``flush``), so the clock never waits for a block that is not due.
 The sim never integrates step k before tick k. While paused, nothing is issued; on resume the deadlines
 restart from the resume time (no burst to catch up).
+
+The first step is a handshake: tick 0 grants step 0 alone (with a report), and nothing more is granted
+until the sim's state 1 shows that the whole loop is connected: the sim heard the clock, the
+controller heard the sim and the trajectory, the sim heard the controller. Zenoh delivers a
+publication only to the subscribers its session already knows of, and a peer that has just joined may
+learn of the others' subscribers a few milliseconds after the clock saw every liveliness token; until
+state 1 arrives the node repeats tick 0 at short intervals (:meth:`handshake_repeat_due`). In
+realtime mode the deadlines start from the arrival of state 1 (tick 1 is due then).
 """
 
 from __future__ import annotations
@@ -35,6 +44,7 @@ class ClockCore:
     late_ticks: int = 0
     paused_time: float = 0.0
     _paused_since: float | None = field(default=None, repr=False)
+    handshake_repeats: int = 0  # tick 0 repeated while waiting for state 1
     lateness: list[float] = field(default_factory=list)
     _on_time: int = field(default=0, repr=False)  # ticks issued within dt of their deadline
     _latest: float = field(default=-math.inf, repr=False)  # the largest lateness
@@ -51,8 +61,10 @@ class ClockCore:
     def next_grant(self, now: float) -> tuple[int, int, bool] | None:
         """``(first, until, flush)`` of the tick to issue now, if any (call repeatedly until None)."""
         k = self.issued + 1
-        if self.paused or k >= self.total_steps or (k > 0 and self.reached < k - self.lookahead):
+        if self.paused or k >= self.total_steps or (k > 0 and self.reached < max(1, k - self.lookahead)):
             return None
+        if k == 0:
+            return 0, 0, True  # the handshake (module docstring)
         if self.realtime:
             if self.started_at is not None and now < self.deadline(k):
                 return None
@@ -81,14 +93,29 @@ class ClockCore:
         """Record state k; True if it is news (progress)."""
         if k <= self.reached:
             return False
+        if self.reached < 1 <= k and self.realtime:
+            self.base, self.base_step = now, 1  # the handshake is over: tick 1 is due now
         self.reached = k
         self.last_progress = now
         return True
 
+    @property
+    def handshaking(self) -> bool:
+        """Tick 0 issued, state 1 not received yet."""
+        return self.issued >= 0 and self.reached < 1
+
+    def handshake_repeat_due(self, now: float, first: float = 0.05, most: float = 1.0) -> float | None:
+        """During the handshake, when tick 0 is to be repeated: ``first`` seconds after the last grant
+        or repeat, doubling with every repeat up to ``most`` (None: not handshaking)."""
+        if not self.handshaking or self.paused:
+            return None
+        return self.last_progress + min(most, first * 2.0**self.handshake_repeats)
+
     def wait_time(self, now: float) -> float | None:
         """Seconds until the next realtime deadline, if a tick is only waiting for the wall clock."""
         k = self.issued + 1
-        if not self.realtime or self.paused or k >= self.total_steps or (k > 0 and self.reached < k - self.lookahead):
+        if (not self.realtime or self.paused or k >= self.total_steps
+                or (k > 0 and self.reached < max(1, k - self.lookahead))):
             return None
         if self.started_at is None:
             return 0.0
@@ -134,6 +161,7 @@ class ClockCore:
             "rtf": steps * self.dt / wall if wall > 0 else 0.0,
             "late_ticks": self.late_ticks,
             "resends": self.resends,
+            "handshake_repeats": self.handshake_repeats,
             "paused_time": self.paused_time,
         }
         n = len(self.lateness)

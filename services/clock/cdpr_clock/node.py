@@ -24,6 +24,7 @@ from cdpr.runtime.transport import Event, Inbox, log
 from cdpr_clock.core import ClockCore
 
 LINGER = 2.0  # seconds the clock keeps announcing "finished" while participants leave
+HANDSHAKE_FIRST_REPEAT = 0.05  # s: tick 0 is repeated after this, then twice as long each time (core docstring)
 WAIT_LOG_FIRST, WAIT_LOG_EVERY = 2.0, 5.0  # "waiting for ..." lines before the start: the first, then every
 
 
@@ -155,6 +156,9 @@ class ClockNode(Node):
     # -- ticking ----------------------------------------------------------------------------------
     def timeout(self, now: float) -> float:
         wait = self.core.wait_time(now)
+        repeat_at = self.core.handshake_repeat_due(now, HANDSHAKE_FIRST_REPEAT, self.resend_after)
+        if repeat_at is not None:
+            wait = max(0.0, repeat_at - now) if wait is None else min(wait, max(0.0, repeat_at - now))
         return self.idle_period if wait is None else min(wait, self.idle_period)
 
     def idle(self, now: float) -> None:
@@ -169,7 +173,13 @@ class ClockNode(Node):
         while (grant := self.core.next_grant(time.monotonic())) is not None:
             first, until, flush = grant
             self.send_tick(first, until, time.monotonic(), flush=flush)
-        if (
+        repeat_at = self.core.handshake_repeat_due(now, HANDSHAKE_FIRST_REPEAT, self.resend_after)
+        if repeat_at is not None and now >= repeat_at and now - self.core.last_progress < self.resend_after:
+            # state 1 not there yet: tick 0 again (quietly: a peer that has just joined may have missed it)
+            self.core.handshake_repeats += 1
+            self.core.last_progress = now
+            self._tick.put(Tick(0, 0.0, 0, True, True).encode())
+        elif (
             not self.core.paused
             and self.core.started_at is not None
             and now - self.core.last_progress > self.resend_after

@@ -313,6 +313,7 @@ def run_session(
         "late_ticks": stats.get("late_ticks"),
         "faults": {k: v for k, v in {**stats.get("faults", {}), **faults}.items() if v},
         "resends": stats.get("resends"),
+        "handshake_repeats": stats.get("handshake_repeats"),
         "rrd": rrd,
         "mcap": mcap,
         "exit_codes": codes,
