@@ -11,6 +11,9 @@ $(VENV)/.installed: pyproject.toml
 	$(PYTHON) -m venv $(VENV)
 	$(PIP) install --quiet --upgrade pip
 	$(PIP) install --quiet -e '.[test]'
+	@# the sources' bytecode, written once (an editable install leaves that to the first import, which
+	@# does not write it where PYTHONDONTWRITEBYTECODE is set: every process would compile them again)
+	$(PY) -m compileall -q shared services >/dev/null
 	touch $@
 
 .venv: $(VENV)/.installed

@@ -118,7 +118,8 @@ def _child_pid(session_id: str, service: str, timeout: float = 60.0) -> int:
     deadline = time.monotonic() + timeout
     while time.monotonic() < deadline:
         for pid in processes_mentioning(session_id):
-            cmdline = Path(f"/proc/{pid}/cmdline").read_bytes().split(b"\0")
+            # the arguments NUL-separated, or one title (a service forked by the launcher)
+            cmdline = Path(f"/proc/{pid}/cmdline").read_bytes().replace(b"\0", b" ").split()
             if b"cdpr.runtime" in cmdline and service.encode() in cmdline and b"-m" in cmdline:
                 return pid
         time.sleep(0.05)

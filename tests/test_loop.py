@@ -185,7 +185,7 @@ def _roles_and_policies(session: str) -> dict[str, int]:
     out = {}
     for pid in processes_mentioning(session):
         try:
-            argv = Path(f"/proc/{pid}/cmdline").read_bytes().split(b"\0")
+            argv = Path(f"/proc/{pid}/cmdline").read_bytes().replace(b"\0", b" ").split()  # (or a title)
             policy = os.sched_getscheduler(pid) & ~os.SCHED_RESET_ON_FORK
         except OSError:
             continue

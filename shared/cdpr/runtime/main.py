@@ -13,7 +13,7 @@ from __future__ import annotations
 import argparse
 import math
 import sys
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from typing import TYPE_CHECKING, NoReturn
 
 from cdpr.errors import InputError
@@ -68,8 +68,11 @@ def _fail(message: str) -> NoReturn:
     sys.exit(2)
 
 
-def node_main(name: str, argv: Sequence[str] | None = None) -> NoReturn:
-    """Parse ``argv`` (default ``sys.argv[1:]``), build node ``name`` and serve it until the session ends."""
+def node_main(name: str, argv: Sequence[str] | None = None, before_serve: Callable[[], None] | None = None) -> NoReturn:
+    """Parse ``argv`` (default ``sys.argv[1:]``), build node ``name`` and serve it until the session ends.
+
+    ``before_serve`` runs once the node is built, before its Zenoh session opens (the launcher's forked
+    services wait there for the session's router, :mod:`cdpr.tools.launch`)."""
     from cdpr.protocol import Keys
     from cdpr.runtime.registry import node_class
     from cdpr.runtime.service import serve, set_realtime_priority
@@ -94,4 +97,6 @@ def node_main(name: str, argv: Sequence[str] | None = None) -> NoReturn:
             set_realtime_priority(args.rt_priority)  # before Zenoh's threads exist: they inherit it
     except InputError as exc:
         _fail(str(exc))
+    if before_serve is not None:
+        before_serve()
     sys.exit(serve(node, conf))

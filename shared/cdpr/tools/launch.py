@@ -22,10 +22,13 @@ import signal
 import socket
 import subprocess
 import sys
+import threading
 import time
+import traceback
 from pathlib import Path
-from typing import Any
+from typing import Any, NoReturn
 
+import setproctitle
 import zenoh
 
 from cdpr.config.scenario import Scenario
@@ -46,6 +49,7 @@ from cdpr.tools.metrics import RunMetrics
 
 PEER_LISTEN = "tcp/127.0.0.1:0"  # where a local child listens for its peers: loopback, any free port
 STOP_GRACE = 4.0  # seconds a child gets to stop after SIGTERM before it is killed
+STOP_SIGNALS = {signal.SIGINT, signal.SIGTERM}
 FINISH_GRACE = 60.0  # after a normal end, seconds the services get to leave by themselves (the recorder
 #                     may still be writing a large file)
 
@@ -65,17 +69,131 @@ def local_endpoint(listen: str) -> str:
     return f"{proto}/{host}:{port}"
 
 
+def service_command(name: str, args: list[str]) -> list[str]:
+    """The command line that runs service ``name`` as its own process."""
+    return [sys.executable, "-m", "cdpr.runtime", name, *args]
+
+
+def can_fork() -> bool:
+    """Whether this process may fork its services: POSIX, and no thread besides this one (a forked
+    child has only the thread that forked; a lock another thread held would stay locked in it)."""
+    if not hasattr(os, "fork") or threading.active_count() != 1:
+        return False
+    try:
+        return len(os.listdir("/proc/self/task")) == 1  # native threads too (OpenBLAS's pool, Zenoh's)
+    except OSError:
+        return False
+
+
+class Forked:
+    """A service forked from the launcher, with the part of :class:`subprocess.Popen` that
+    :class:`Children` uses (``pid``, ``poll``, ``wait``, ``send_signal``, ``returncode``).
+
+    The launcher has imported numpy, pydantic and Zenoh's bindings and validated the scenario; a
+    forked service starts from there instead of a fresh interpreter (~0.4 s of CPU each: five of them
+    on two cores were most of a short session's wall time). The child is what ``python -m
+    cdpr.runtime NAME ARGS`` would be, with that command line as its process title (``ps``, ``top``):
+    it parses ``ARGS``, loads the scenario, builds its node, then waits on ``gate`` (a pipe the
+    launcher closes once the session's router listens: the launcher must not have Zenoh's threads
+    when it forks) before it opens its own session. It never returns into the launcher's code: it
+    leaves with ``os._exit`` once served (its Zenoh session is closed by then, sockets included).
+    """
+
+    def __init__(self, name: str, args: list[str], gate: tuple[int, int]) -> None:
+        self.args = service_command(name, args)
+        self.returncode: int | None = None
+        sys.stdout.flush()
+        sys.stderr.flush()
+        # SIGINT/SIGTERM held until the child has its own handlers (the launcher's would swallow them)
+        held = signal.pthread_sigmask(signal.SIG_BLOCK, STOP_SIGNALS)
+        try:
+            pid = os.fork()
+            if pid == 0:  # pragma: no cover (the child process: measured by the session it serves)
+                _forked_service(name, args, gate, held)
+        finally:
+            signal.pthread_sigmask(signal.SIG_SETMASK, held)
+        self.pid = pid
+
+    def poll(self) -> int | None:
+        if self.returncode is None:
+            pid, status = os.waitpid(self.pid, os.WNOHANG)
+            if pid == self.pid:
+                self.returncode = os.waitstatus_to_exitcode(status)
+        return self.returncode
+
+    def wait(self) -> int:
+        if self.returncode is None:
+            _, status = os.waitpid(self.pid, 0)
+            self.returncode = os.waitstatus_to_exitcode(status)
+        return self.returncode
+
+    def send_signal(self, sig: int) -> None:
+        if self.returncode is None:
+            with contextlib.suppress(ProcessLookupError):
+                os.kill(self.pid, sig)
+
+
+def _forked_service(name: str, args: list[str], gate: tuple[int, int], mask: set[signal.Signals]) -> NoReturn:
+    """The forked child: serve ``name`` as ``python -m cdpr.runtime`` would, then leave."""
+    code = 1
+    try:
+        for sig in STOP_SIGNALS:
+            signal.signal(sig, signal.SIG_DFL)  # a stop ends it at once, until its serve loop takes them
+        signal.pthread_sigmask(signal.SIG_SETMASK, mask)  # (one that came since the fork: now)
+        read_end, write_end = gate
+        os.close(write_end)  # the launcher's alone: its closing is the signal
+        os.dup2(sys.stderr.fileno(), sys.stdout.fileno())  # stdout is the launcher's summary: services log
+        os.environ[PARENT_ENV] = str(os.getppid())
+        setproctitle.setproctitle(" ".join(service_command(name, args)))
+        setproctitle.setthreadtitle(f"cdpr-{name}"[:15])  # the short name (top, ps -o comm)
+
+        def wait_for_router() -> None:
+            os.read(read_end, 1)  # end of file: the router listens (or the launcher is gone: then the
+            os.close(read_end)  # session cannot be reached, and the service says so and ends)
+
+        from cdpr.runtime.main import node_main
+
+        node_main(name, args, before_serve=wait_for_router)
+    except SystemExit as exc:
+        if isinstance(exc.code, str):
+            print(exc.code, file=sys.stderr)
+        code = exc.code if isinstance(exc.code, int) else (0 if exc.code is None else 1)
+    except BaseException:
+        traceback.print_exc()
+    finally:
+        with contextlib.suppress(Exception):
+            sys.stdout.flush()
+            sys.stderr.flush()
+        os._exit(code)
+
+
 class Children:
-    """The service processes of one session; stops them all, whatever happens."""
+    """The service processes of one session; stops them all, whatever happens.
 
-    def __init__(self) -> None:
-        self.procs: dict[str, subprocess.Popen[bytes]] = {}
+    ``fork``: the services are forked from this process (:class:`Forked`) before the session's router
+    opens, and wait until :meth:`release`; otherwise each is a new interpreter, started by
+    :meth:`release` once the router listens.
+    """
 
-    def start(self, name: str, args: list[str]) -> None:
-        env = dict(os.environ, **{PARENT_ENV: str(os.getpid())})
-        self.procs[name] = subprocess.Popen(
-            [sys.executable, "-m", "cdpr.runtime", name, *args], stdout=sys.stderr.fileno(), env=env
-        )
+    def __init__(self, argv: dict[str, list[str]], fork: bool) -> None:
+        self.argv = argv
+        self.procs: dict[str, subprocess.Popen[bytes] | Forked] = {}
+        self._gate: tuple[int, int] | None = None
+        if fork:
+            self._gate = os.pipe()
+            for name, args in argv.items():
+                self.procs[name] = Forked(name, args, self._gate)
+            os.close(self._gate[0])
+
+    def release(self) -> None:
+        """The router listens: the forked services may open their sessions (or the others start)."""
+        if self._gate is not None:
+            os.close(self._gate[1])
+            self._gate = None
+        elif not self.procs:
+            env = dict(os.environ, **{PARENT_ENV: str(os.getpid())})
+            for name, args in self.argv.items():
+                self.procs[name] = subprocess.Popen(service_command(name, args), stdout=sys.stderr.fileno(), env=env)
 
     def failed(self) -> list[tuple[str, int]]:
         return [(n, p.returncode) for n, p in self.procs.items() if p.poll() is not None and p.returncode != 0]
@@ -198,7 +316,6 @@ def run_session(
     metrics = RunMetrics()
     faults: dict[str, dict[str, int]] = {}
     m = scenario.robot.m
-    children = Children()
     started = time.monotonic()
     exit_ok = False
     # Every node's command line, once (the in-process composition parses the same options).
@@ -213,7 +330,12 @@ def run_session(
     argv = {"clock": [*loop, "--mode", mode, "--expect", ",".join(expected)]}
     argv.update({name: loop for name in ("sim", "trajectory", "controller") if name not in without})
     if recording:
-        rec = [*common]
+        # The recorder is a client of the router even among local peers: it takes a few blocks a second
+        # (no hop to save), and the router declares its subscribers to every peer before it passes its
+        # liveliness token on to the clock, so the sim's first telemetry block (the handshake's report)
+        # cannot miss it; a peer learns of a peer only once their direct link is up, a moment later.
+        rec = [scenario.source, "--session", session_id, "--duration", repr(scenario.duration),
+               "--zenoh-mode", "client", "--connect", local]
         if rrd:
             Path(rrd).parent.mkdir(parents=True, exist_ok=True)
             rec += ["--rrd", rrd]
@@ -227,7 +349,14 @@ def run_session(
         if foxglove is not None:
             rec += ["--foxglove", str(foxglove), "--foxglove-host", foxglove_host]
         argv["recorder"] = rec
-    with open_session(conf, "cdpr run") as session:
+    # The services are forked now, before the router's threads exist, and wait for it (Forked).
+    children = Children({} if in_process else argv, fork=not in_process and can_fork())
+    try:
+        router = open_session(conf, "cdpr run")
+    except BaseException:
+        children.stop(wait_first=0.0)
+        raise
+    with router as session:
         inbox = Inbox()
         stop.on_set(inbox.wake)
         tape = Tape()
@@ -257,8 +386,7 @@ def run_session(
                 if remote:
                     log("cdpr", f"waiting for {', '.join(without)} to join session {session_id!r} "
                         f"at {', '.join(listen_eps)}")
-                for name, args in argv.items():
-                    children.start(name, args)
+                children.release()
                 while not stop:
                     monitor.poll(0.2)
                     if monitor.ended:

@@ -129,7 +129,7 @@ def _process_cpu(root: int) -> dict[str, float]:
             with open(f"/proc/{pid}/stat") as f:
                 fields = f.read().rsplit(")", 1)[1].split()
             with open(f"/proc/{pid}/cmdline") as f:
-                argv = f.read().split("\0")
+                argv = f.read().replace("\0", " ").split()  # the arguments, or the title of a forked service
         except (OSError, IndexError):
             continue
         # `python -m cdpr run …` is "run"; its services are `python -m cdpr.runtime NAME …`
