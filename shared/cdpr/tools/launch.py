@@ -2,13 +2,19 @@
 
 The launcher hosts the session's Zenoh router in its own process (listening on loopback by default),
 so no external router is needed. When every service runs on this machine (`cdpr run`, `cdpr up`
-without ``--without``) the children are Zenoh peers: each connects to the router, learns the others
-from it and links to them directly on loopback, so a message of the loop takes one hop. With remote
-participants every service is a client of the router, like the remote ones. Either way a service
-declares its subscribers before its liveliness token, on the same links, so when the clock sees the
-token the service can already be reached. The launcher's own monitor subscribes (on the router
-itself) before any service starts, computes the run summary, and prints it as the last line of
-stdout.
+without ``--without``) the loop's children are Zenoh peers: each connects to the router, learns the
+others from it and links to them directly on loopback, so a message of the loop takes one hop; the
+recorder stays a client of the router (see ``run_session``). With remote participants every service
+is a client of the router, like the remote ones. Either way a service declares its subscribers
+before its liveliness token, so when the clock sees the token the service can be reached (a peer may
+learn of a new peer's subscribers a moment later: the clock's first step is a handshake, see
+:mod:`cdpr_clock.core`). The launcher's own monitor subscribes (on the router itself) before any
+service starts, computes the run summary, and prints it as the last line of stdout.
+
+The services are forked from the launcher once it has loaded the scenario, before its router opens
+(:class:`Forked`): each starts with numpy, pydantic, Zenoh's bindings and the scenario's models
+already imported, which was most of a short session's start-up. Where the launcher cannot fork (a
+thread besides the main one, a platform without ``fork``) each service is a new interpreter.
 """
 
 from __future__ import annotations
