@@ -14,7 +14,8 @@ service starts, computes the run summary, and prints it as the last line of stdo
 The services are forked from the launcher once it has loaded the scenario, before its router opens
 (:class:`Forked`): each starts with numpy, pydantic, Zenoh's bindings and the scenario's models
 already imported, which was most of a short session's start-up. Where the launcher cannot fork (a
-thread besides the main one, a platform without ``fork``) each service is a new interpreter.
+thread besides the main one, a platform without ``fork``), or with ``CDPR_START_METHOD=spawn`` in the
+environment, each service is a new interpreter.
 """
 
 from __future__ import annotations
@@ -80,10 +81,17 @@ def service_command(name: str, args: list[str]) -> list[str]:
     return [sys.executable, "-m", "cdpr.runtime", name, *args]
 
 
+START_METHOD_ENV = "CDPR_START_METHOD"  # "fork" (the default where possible) or "spawn"
+
+
 def can_fork() -> bool:
-    """Whether this process may fork its services: POSIX, and no thread besides this one (a forked
-    child has only the thread that forked; a lock another thread held would stay locked in it)."""
-    if not hasattr(os, "fork") or threading.active_count() != 1:
+    """Whether this process may fork its services: not asked to spawn them (``$CDPR_START_METHOD``),
+    POSIX, and no thread besides this one (a forked child has only the thread that forked; a lock
+    another thread held would stay locked in it)."""
+    method = os.environ.get(START_METHOD_ENV, "fork")
+    if method not in ("fork", "spawn"):
+        raise InputError(f"${START_METHOD_ENV}: fork or spawn, got {method!r}")
+    if method == "spawn" or not hasattr(os, "fork") or threading.active_count() != 1:
         return False
     try:
         return len(os.listdir("/proc/self/task")) == 1  # native threads too (OpenBLAS's pool, Zenoh's)
