@@ -119,6 +119,14 @@ def test_transport_and_realtime(bench: tuple[dict, str]) -> None:
         lateness = [run[f"lateness_{p}_ms"] for p in ("p50", "p99", "p999", "max")]
         assert all(isinstance(x, float) for x in lateness)
         assert lateness == sorted(lateness)
+        # the run's profile: the loop's processes, their CPU and their waits for a CPU, per step
+        assert {"sim", "controller", "clock", "trajectory"} <= set(run["cpu_us_per_step_by_process"])
+        assert all(_positive(run["cpu_us_per_step_by_process"][k]) for k in ("sim", "controller"))
+        assert set(run["wait_us_per_step_by_process"]) == set(run["cpu_us_per_step_by_process"])
+        assert all(w >= 0 for w in run["wait_us_per_step_by_process"].values())
+        assert 0.0 <= run["machine_idle_fraction"] <= 1.0
+        assert 0.0 <= run["machine_steal_fraction"] <= 1.0
+        assert 0.0 < run["probe_on_time_fraction"] <= 1.0  # the sleeping probe reported
 
 
 def test_tda_and_scaling(bench: tuple[dict, str]) -> None:

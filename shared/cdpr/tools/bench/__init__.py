@@ -184,6 +184,23 @@ def _fmt(x: Any, digits: int = 0) -> str:
     return str(x)
 
 
+def _realtime_profile(rt: dict[str, Any]) -> list[tuple[str, str]]:
+    """A realtime run's profile rows: each process's CPU and wait for a CPU per step, the machine."""
+    cpu, wait = rt.get("cpu_us_per_step_by_process") or {}, rt.get("wait_us_per_step_by_process") or {}
+    rows = [(f"    {k}: CPU / waiting for a CPU, us per step", f"{_fmt(cpu[k])} / {_fmt(wait.get(k))}")
+            for k in sorted(cpu, key=lambda k: -cpu[k])]
+    if cpu:
+        rows.append(("    all: CPU / waiting for a CPU, us per step",
+                     f"{_fmt(sum(cpu.values()))} / {_fmt(sum(wait.values()) if wait else None)}"))
+    if rt.get("machine_idle_fraction") is not None:
+        rows.append(("    machine idle / stolen by the host", f"{100 * rt['machine_idle_fraction']:.1f} % / "
+                     f"{100 * rt['machine_steal_fraction']:.2f} %"))
+    if rt.get("probe_on_time_fraction") is not None:
+        rows.append(("    a sleeping probe beside it: wakes within 1 ms",
+                     f"{100 * rt['probe_on_time_fraction']:.3f} % (max {rt['probe_max_ms']:.1f} ms)"))
+    return rows
+
+
 def table(r: dict[str, Any]) -> str:
     """The results as a plain-text table (what `cdpr bench` prints)."""
     mono, dist, rtt, rt, mach = r["monolithic"], r["distributed"], r["zenoh_rtt"], r["realtime"], r["machine"]
@@ -218,6 +235,9 @@ def table(r: dict[str, Any]) -> str:
          f"{100 * rt['on_time_fraction']:.3f} %"),
         ("    lateness p50 / p99 / p99.9 / max, ms",
          " / ".join(f"{rt[f'lateness_{p}_ms']:.3f}" for p in ("p50", "p99", "p999", "max"))),
+        # a step's state → command → state, without waiting for ticks: what 1 ms must hold
+        ("    one step of the fast loop above, ms (1 kHz: < 1)", _fmt(1e3 / dist["steps_per_s"], 2)),
+        *_realtime_profile(rt),
     ]
     if (fifo := rt.get("rt_priority")) is not None:
         rows += [
@@ -225,6 +245,7 @@ def table(r: dict[str, Any]) -> str:
              f"{100 * fifo['on_time_fraction']:.3f} %"),
             ("    lateness p50 / p99 / p99.9 / max, ms",
              " / ".join(f"{fifo[f'lateness_{p}_ms']:.3f}" for p in ("p50", "p99", "p999", "max"))),
+            *_realtime_profile(fifo),
         ]
     else:
         rows.append(("  with --rt-priority", "not permitted here"))

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import contextlib
 import json
 import os
 import re
@@ -117,8 +118,22 @@ def _children(pid: int) -> list[int]:
     return out
 
 
-def _process_cpu(root: int) -> dict[str, float]:
-    """CPU seconds (user + system) of ``root`` and its descendants, by role (``run``, ``sim``, …)."""
+def _run_queue_wait(pid: int) -> float:
+    """Seconds the threads of ``pid`` have spent runnable but waiting for a CPU (``/proc/PID/task/*/
+    schedstat``, its second field; 0 where the kernel keeps no such statistics)."""
+    total = 0
+    try:
+        for task in os.listdir(f"/proc/{pid}/task"):
+            with contextlib.suppress(OSError, IndexError, ValueError), open(f"/proc/{pid}/task/{task}/schedstat") as f:
+                total += int(f.read().split()[1])
+    except OSError:
+        pass
+    return total / 1e9
+
+
+def _process_cpu(root: int, waits: dict[str, float] | None = None) -> dict[str, float]:
+    """CPU seconds (user + system) of ``root`` and its descendants, by role (``run``, ``sim``, …);
+    with ``waits``, their seconds waiting for a CPU, by role, added to it."""
     tick = os.sysconf("SC_CLK_TCK")
     out: dict[str, float] = {}
     todo = [root]
@@ -136,6 +151,8 @@ def _process_cpu(root: int) -> dict[str, float]:
         launcher = next((a for a in ("cdpr", "cdpr.runtime") if a in argv[:-1]), None)
         role = argv[argv.index(launcher) + 1] if launcher is not None else "other"
         out[role] = out.get(role, 0.0) + (int(fields[11]) + int(fields[12])) / tick
+        if waits is not None:
+            waits[role] = waits.get(role, 0.0) + _run_queue_wait(pid)
     return out
 
 
@@ -151,7 +168,7 @@ class SessionRun:
             [sys.executable, "-m", "cdpr", "run", *args, "--session", session],
             stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
         )
-        self._marks: list[tuple[int, dict[str, float]]] = []
+        self._marks: list[tuple[int, dict[str, float], dict[str, float]]] = []
         self._stderr: list[str] = []
         self._reader = threading.Thread(target=self._read, args=(self.proc.stderr,), daemon=True)
         self._reader.start()
@@ -160,7 +177,8 @@ class SessionRun:
         for line in stream:
             match = _PROGRESS.search(line)
             if match and int(match.group(1)) > 0:
-                self._marks.append((int(match.group(1)), _process_cpu(self.proc.pid)))
+                waits: dict[str, float] = {}
+                self._marks.append((int(match.group(1)), _process_cpu(self.proc.pid, waits), waits))
             elif not match:
                 self._stderr.append(line)
 
@@ -182,12 +200,15 @@ class SessionRun:
             raise RuntimeError(f"cdpr run (session {self.session}) printed no summary: {tail}") from None
         summary["cpu_us_per_step"] = None
         summary["cpu_us_per_step_by_process"] = {}
+        summary["wait_us_per_step_by_process"] = {}  # runnable, waiting for a CPU
         if len(self._marks) >= 2:
-            (k0, c0), (k1, c1) = self._marks[0], self._marks[-1]
+            (k0, c0, w0), (k1, c1, w1) = self._marks[0], self._marks[-1]
             if k1 > k0:
                 by = {r: 1e6 * (c1.get(r, 0.0) - c0.get(r, 0.0)) / (k1 - k0) for r in c1}
                 summary["cpu_us_per_step_by_process"] = by
                 summary["cpu_us_per_step"] = sum(by.values())
+                summary["wait_us_per_step_by_process"] = {
+                    r: 1e6 * (w1.get(r, 0.0) - w0.get(r, 0.0)) / (k1 - k0) for r in w1}
         return summary
 
 
@@ -314,6 +335,51 @@ def count_deliveries(scenario: Scenario, steps: int) -> dict[str, Any]:
                                             if k not in ("status", "stats"))}
 
 
+def _cpu_stat() -> dict[str, int]:
+    """The machine's CPU time so far (``/proc/stat``, in ticks): idle, steal, and the total."""
+    with open("/proc/stat") as f:
+        fields = [int(x) for x in f.readline().split()[1:]]
+    return {"idle": fields[3] + fields[4], "steal": fields[7] if len(fields) > 7 else 0, "total": sum(fields[:8])}
+
+
+_PROBE = """
+import sys, time
+lat, nxt = [], time.monotonic()
+while True:
+    nxt += 0.001
+    time.sleep(max(0.0, nxt - time.monotonic()))
+    lat.append(time.monotonic() - nxt)
+    if len(lat) % 1000 == 0 and sys.stdin in __import__("select").select([sys.stdin], [], [], 0)[0]:
+        break
+print(sum(x <= 0.001 for x in lat) / max(1, len(lat)), 1e3 * max(lat, default=0.0))
+"""
+
+
+class _SleeperProbe:
+    """A process that sleeps until each millisecond, as the clock does, and counts how late it woke:
+    the lateness the machine itself gives a sleeping thread (what is left is the loop's own)."""
+
+    def __enter__(self) -> _SleeperProbe:
+        self.proc = subprocess.Popen([sys.executable, "-c", _PROBE], stdin=subprocess.PIPE,
+                                     stdout=subprocess.PIPE, text=True)
+        self.on_time_fraction: float | None = None
+        self.max_ms: float | None = None
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        assert self.proc.stdin is not None
+        self.proc.stdin.write("stop\n")
+        self.proc.stdin.close()
+        try:
+            self.proc.wait(timeout=30)
+            assert self.proc.stdout is not None
+            on_time, worst = (float(x) for x in self.proc.stdout.read().split())
+            self.on_time_fraction, self.max_ms = on_time, worst
+        except (subprocess.TimeoutExpired, ValueError):
+            self.proc.kill()
+            self.proc.wait()
+
+
 RT_PRIORITY = 10  # the SCHED_FIFO priority of the second realtime run, when the system allows it
 
 
@@ -332,9 +398,19 @@ def bench_realtime(scenario: str, duration: float) -> dict[str, Any]:
 
     def one(extra: list[str]) -> dict[str, Any]:
         args = [scenario, "--mode", "realtime", "--duration", repr(duration), *extra]
-        s = _run_sessions([args], "rt", 900.0)[0]
+        stat0 = _cpu_stat()
+        with _SleeperProbe() as probe:
+            s = _run_sessions([args], "rt", 900.0)[0]
+        stat1 = _cpu_stat()
+        busy = {k: (stat1[k] - stat0[k]) / max(1, stat1["total"] - stat0["total"]) for k in ("steal", "idle")}
         return {"duration_s": duration, "steps": s["steps"], "late_ticks": s["late_ticks"],
-                **{k: s[k] for k in keys}}
+                **{k: s[k] for k in keys},
+                # the profile of the run: what each process costs per step, how long it waited for a
+                # CPU; the machine's idle and stolen shares; a sleeping probe's own wake-up lateness
+                "cpu_us_per_step_by_process": s["cpu_us_per_step_by_process"],
+                "wait_us_per_step_by_process": s["wait_us_per_step_by_process"],
+                "machine_idle_fraction": busy["idle"], "machine_steal_fraction": busy["steal"],
+                "probe_on_time_fraction": probe.on_time_fraction, "probe_max_ms": probe.max_ms}
 
     result = one([])
     result["rt_priority"] = (one(["--rt-priority", str(RT_PRIORITY)]) | {"priority": RT_PRIORITY}
