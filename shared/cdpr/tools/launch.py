@@ -101,7 +101,7 @@ def can_fork() -> bool:
 
 class Forked:
     """A service forked from the launcher, with the part of :class:`subprocess.Popen` that
-    :class:`Children` uses (``pid``, ``poll``, ``wait``, ``send_signal``, ``returncode``).
+    :class:`Children` uses (``poll``, ``wait``, ``send_signal``, ``returncode``).
 
     The launcher has imported numpy, pydantic and Zenoh's bindings and validated the scenario; a
     forked service starts from there instead of a fresh interpreter (~0.4 s of CPU each: five of them
@@ -114,7 +114,6 @@ class Forked:
     """
 
     def __init__(self, name: str, args: list[str], gate: tuple[int, int]) -> None:
-        self.args = service_command(name, args)
         self.returncode: int | None = None
         sys.stdout.flush()
         sys.stderr.flush()
