@@ -32,22 +32,22 @@ def test_the_first_step_is_a_handshake() -> None:
     assert core.handshaking
     core.on_state(1, 0.002)
     assert not core.handshaking
-    assert core.handshake_repeat_due(0.002) is None
+    assert core.handshake_repeat_due() is None
     assert drain(core, 0.002) == [(1, 101, True)]
 
 
 def test_tick_0_is_repeated_sooner_and_sooner_less_often_until_state_1() -> None:
     core = ClockCore(total_steps=10, dt=0.001)
-    assert core.handshake_repeat_due(0.0) is None  # nothing issued yet
+    assert core.handshake_repeat_due() is None  # nothing issued yet
     core.resume(0.0)
     drain(core, 10.0)
     due = []
     for _ in range(7):
-        due.append(core.handshake_repeat_due(10.0, first=0.05, most=1.0))
+        due.append(core.handshake_repeat_due(first=0.05, most=1.0))
         core.handshake_repeats += 1
     assert [round(d - 10.0, 6) for d in due] == [0.05, 0.1, 0.2, 0.4, 0.8, 1.0, 1.0]
     core.pause(10.0)
-    assert core.handshake_repeat_due(10.0) is None  # a missing participant: the pause handles it
+    assert core.handshake_repeat_due() is None  # a missing participant: the pause handles it
 
 
 def test_lookahead_one_keeps_one_step_ahead_of_the_sim() -> None:

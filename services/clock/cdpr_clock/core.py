@@ -104,7 +104,7 @@ class ClockCore:
         """Tick 0 issued, state 1 not received yet."""
         return self.issued >= 0 and self.reached < 1
 
-    def handshake_repeat_due(self, now: float, first: float = 0.05, most: float = 1.0) -> float | None:
+    def handshake_repeat_due(self, first: float = 0.05, most: float = 1.0) -> float | None:
         """During the handshake, when tick 0 is to be repeated: ``first`` seconds after the last grant
         or repeat, doubling with every repeat up to ``most`` (None: not handshaking)."""
         if not self.handshaking or self.paused:

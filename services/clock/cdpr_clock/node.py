@@ -156,7 +156,7 @@ class ClockNode(Node):
     # -- ticking ----------------------------------------------------------------------------------
     def timeout(self, now: float) -> float:
         wait = self.core.wait_time(now)
-        repeat_at = self.core.handshake_repeat_due(now, HANDSHAKE_FIRST_REPEAT, self.resend_after)
+        repeat_at = self.core.handshake_repeat_due(HANDSHAKE_FIRST_REPEAT, self.resend_after)
         if repeat_at is not None:
             wait = max(0.0, repeat_at - now) if wait is None else min(wait, max(0.0, repeat_at - now))
         return self.idle_period if wait is None else min(wait, self.idle_period)
@@ -173,7 +173,7 @@ class ClockNode(Node):
         while (grant := self.core.next_grant(time.monotonic())) is not None:
             first, until, flush = grant
             self.send_tick(first, until, time.monotonic(), flush=flush)
-        repeat_at = self.core.handshake_repeat_due(now, HANDSHAKE_FIRST_REPEAT, self.resend_after)
+        repeat_at = self.core.handshake_repeat_due(HANDSHAKE_FIRST_REPEAT, self.resend_after)
         if repeat_at is not None and now >= repeat_at and now - self.core.last_progress < self.resend_after:
             # state 1 not there yet: tick 0 again (quietly: a peer that has just joined may have missed it)
             self.core.handshake_repeats += 1
