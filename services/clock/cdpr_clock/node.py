@@ -158,7 +158,8 @@ class ClockNode(Node):
         wait = self.core.wait_time(now)
         repeat_at = self.core.handshake_repeat_due(HANDSHAKE_FIRST_REPEAT, self.resend_after)
         if repeat_at is not None:
-            wait = max(0.0, repeat_at - now) if wait is None else min(wait, max(0.0, repeat_at - now))
+            left = max(0.0, repeat_at - now)
+            wait = left if wait is None else min(wait, left)
         return self.idle_period if wait is None else min(wait, self.idle_period)
 
     def idle(self, now: float) -> None:
@@ -176,9 +177,8 @@ class ClockNode(Node):
         repeat_at = self.core.handshake_repeat_due(HANDSHAKE_FIRST_REPEAT, self.resend_after)
         if repeat_at is not None and now >= repeat_at and now - self.core.last_progress < self.resend_after:
             # state 1 not there yet: tick 0 again (quietly: a peer that has just joined may have missed it)
-            self.core.handshake_repeats += 1
             self.core.last_progress = now
-            self._tick.put(Tick(0, 0.0, 0, True, True).encode())
+            self.send_tick(0, 0, now, resend=True, handshake=True)
         elif (
             not self.core.paused
             and self.core.started_at is not None
@@ -193,10 +193,14 @@ class ClockNode(Node):
         if now - self.last_status >= self.status_period:
             self.publish_status(now)
 
-    def send_tick(self, first: int, until: int, now: float, flush: bool = False, resend: bool = False) -> None:
-        """Grant steps ``first`` … ``until`` (``resend``: again, asking for the current state)."""
+    def send_tick(self, first: int, until: int, now: float, flush: bool = False, resend: bool = False,
+                  handshake: bool = False) -> None:
+        """Grant steps ``first`` … ``until`` (``resend``: again, asking for the current state; counted
+        as a handshake repeat with ``handshake``, else as a resend)."""
         assert self._tick is not None
-        if resend:
+        if handshake:
+            self.core.handshake_repeats += 1
+        elif resend:
             self.core.resends += 1
         else:
             self.core.issue(first, now, until)
