@@ -22,7 +22,7 @@ from cdpr.mechanics.dynamics import forward_dynamics, gravity_wrench
 from cdpr.mechanics.kinematics import cable_length_rates, inverse_kinematics
 from cdpr.mechanics.robot import Robot
 from cdpr.mechanics.rotation import matrix_to_rotvec, quat_to_matrix, rotvec_to_matrix, rpy_to_matrix
-from cdpr_sim.core import PlatformSim, PlatformState, clamp_tensions
+from cdpr_sim.core import PlatformSim, PlatformState, clamp_tensions, state_message
 
 G = 9.81
 DT = 1e-3
@@ -422,3 +422,21 @@ def test_same_tensions_give_bit_identical_states() -> None:
     for f in commands:
         replay.step(f)
     _assert_same(replay.state(), sims[1].state())
+
+
+@pytest.mark.parametrize("name", list(ROBOTS))
+def test_message_is_the_state_as_a_message(name: str) -> None:
+    """``message`` (what the sim service sends first) equals ``state_message(state())`` exactly, read
+    before the state or after it, and reading it does not change the run."""
+    robot = ROBOTS[name]()
+    p0, R0, v0 = moving_state(robot, spinning=True)
+    sims = [PlatformSim(robot, DT, p0, R0, v0), PlatformSim(robot, DT, p0, R0, v0)]
+    commands = np.random.default_rng(5).uniform(-10.0, 1.1 * robot.tmax, (50, robot.m))  # some clamp
+    for k, f in enumerate(commands):
+        first = sims[0].message(k)  # the message first, then the state (the service's order)
+        assert first == state_message(sims[0].state(), k)
+        sims[1].state()
+        assert sims[1].message(k) == first  # or after it
+        for sim in sims:
+            sim.step(f)
+    _assert_same(sims[0].state(), sims[1].state())

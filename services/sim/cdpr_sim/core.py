@@ -50,7 +50,7 @@ import numpy as np
 from numpy.typing import ArrayLike
 
 from cdpr.config.scenario import Scenario
-from cdpr.mechanics.kinematics import cable_geometry
+from cdpr.mechanics.kinematics import cable_geometry, cable_vectors
 from cdpr.mechanics.robot import GRAVITY, Robot
 from cdpr.mechanics.rotation import Array, matrix_to_quat
 from cdpr.protocol import State
@@ -209,6 +209,7 @@ class PlatformSim:
         self._world, self._joint, self._body = self._platform.world, self._platform.joint, self._platform.body
         self._tensions = _readonly(np.zeros(robot.m))
         self._snap: _Snapshot | None = None
+        self._reads: tuple[Array, Array, Array, Array] | None = None
         self.reset(position, rotation, twist)
 
     @property
@@ -225,17 +226,22 @@ class PlatformSim:
         """Back to step 0 at the given pose and twist (defaults: home pose, at rest)."""
         self._platform.place(*start_pose(self.robot, position, rotation, twist))
         self._world.reset()
-        self._snap = None
+        self._snap = self._reads = None
         self.step_count = 0
         self._tensions = _readonly(np.zeros(self.robot.m))
+
+    def _read_body(self) -> tuple[Array, Array, Array, Array]:
+        """``(position, R, v, ω)`` of the body, read from DART at most once per step."""
+        if self._reads is None:
+            tf, body = self._body.getTransform(), self._body
+            self._reads = (tf.translation(), tf.rotation(), body.getLinearVelocity(), body.getAngularVelocity())
+        return self._reads
 
     def _snapshot(self) -> _Snapshot:
         """The current state's geometry, computed at most once per step (until the next step or reset)."""
         if self._snap is not None:
             return self._snap
-        tf = self._body.getTransform()
-        p, R = tf.translation(), tf.rotation()
-        v, w = self._body.getLinearVelocity(), self._body.getAngularVelocity()
+        p, R, v, w = self._read_body()
         _, lengths, d, moments, rates = cable_geometry(self._a, self._b, p, R, v, w)
         snap = _Snapshot(*(_readonly(x) for x in (p, R, np.concatenate((v, w)), lengths, d, moments, rates)))
         self._snap = snap
@@ -246,6 +252,16 @@ class PlatformSim:
         s = self._snapshot()
         return PlatformState.of(self.step_count, self.t, s.position, s.rotation, s.twist, s.lengths, s.rates,
                                 self._tensions)
+
+    def message(self, clamped: int) -> State:
+        """The current state as a ``sim/state`` message: ``state_message(self.state(), clamped)``, the same
+        numbers, from the least work (pose, twist and cable lengths). The rest of the state's geometry
+        (the cables' directions, moments and rates, which the next step needs) waits for :meth:`state`
+        or :meth:`step`: the sim service sends the message first."""
+        p, R, v, w = self._read_body()
+        lengths = cable_vectors(self._a, self._b, p, R)[2]
+        return State(self.step_count, self.t, (*p.tolist(), *matrix_to_quat(R).tolist()), (*v.tolist(), *w.tolist()),
+                     tuple(lengths.tolist()), tuple(self._tensions.tolist()), clamped)
 
     # -- dynamics ---------------------------------------------------------------------------------
     def step(self, tensions: np.ndarray) -> StepReport:
@@ -267,7 +283,7 @@ class PlatformSim:
         body.setExtForce(pull @ s.directions, self._zero3, False, True)
         body.setExtTorque(pull @ s.moments, False)
         self._world.step()  # semi-implicit Euler; clears the external force and torque afterwards
-        self._snap = None
+        self._snap = self._reads = None
         self.step_count += 1
         self._tensions = _readonly(applied)
         return StepReport(self._tensions, low, high, _readonly(damping))

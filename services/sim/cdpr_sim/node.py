@@ -22,7 +22,7 @@ from cdpr.config.scenario import Scenario
 from cdpr.protocol import Command, Keys, Sensors, State, Telemetry, Tick
 from cdpr.runtime.service import Node
 from cdpr.runtime.transport import Event, Inbox, log
-from cdpr_sim.core import make_sim, state_message
+from cdpr_sim.core import make_sim
 from cdpr_sim.sensors import SensorConfig, SensorSuite
 
 TELEMETRY_EVERY = 50  # steps per sim/telemetry block...
@@ -33,8 +33,7 @@ class SimNode(Node):
     name = "sim"
     direct = True  # handled on Zenoh's receive thread: no hand-off between a message and its answer
 
-    make_core = staticmethod(make_sim)  # the model: .state(), .step(values); state_message(state, clamped)
-    state_message = staticmethod(state_message)
+    make_core = staticmethod(make_sim)  # the model: .step(values), .message(clamped) (sim/state), .state()
 
     def __init__(self, scenario: Scenario, keys: Keys) -> None:
         super().__init__(keys)
@@ -90,7 +89,7 @@ class SimNode(Node):
         if again and self._state_msg is not None and self._state_msg.step == self.step:
             msg = self._state_msg
         else:
-            msg = self._state_msg = state_message(self.sim.state(), self.clamped)
+            msg = self._state_msg = self.sim.message(self.clamped)
         self._pub.put(msg.encode())
         self.published_at = time.monotonic()
         if self.published_step == self.step:
@@ -154,7 +153,12 @@ class SimNode(Node):
         if self.step > self.allowed:
             self.pending = cmd  # the controller was quicker than the tick: wait for the clock
             return
+        # The loop waits for the next state: it goes out first, the bookkeeping after.
+        lag = time.monotonic() - self.published_at
         report = self.sim.step(np.asarray(cmd.values))
+        clamped = report.clamped_low or report.clamped_high
+        self.clamped += bool(clamped)
+        self.publish_state()
         if getattr(self.sim, "fallbacks", 0) > self.counters.get("cable_fallbacks", 0):  # the cable law fell back
             self.count("cable_fallbacks")
             if self.counters["cable_fallbacks"] == 1:
@@ -162,9 +166,8 @@ class SimNode(Node):
                     "(such steps are counted in cable_fallbacks; logged once)")
         self.last_command = cmd
         self.block_commands.append(cmd)
-        self.block_lags.append(time.monotonic() - self.published_at)
-        if report.clamped_low or report.clamped_high:
-            self.clamped += 1
+        self.block_lags.append(lag)
+        if clamped:
             self.count("clamped_commands")
             self.warn(
                 "clamped",
@@ -174,12 +177,12 @@ class SimNode(Node):
                 f"step {cmd.step}: clamped {report.clamped_high} length(s) above max_length = "
                 f"{self.scenario.robot.max_length:g} m",
             )
-        self.publish_state()
         if (len(self.block_states) >= TELEMETRY_EVERY or self.step >= self.total_steps
                 or 0 <= self.flush_at <= cmd.step or time.monotonic() - self.flushed_at >= TELEMETRY_PERIOD):
             if self.flush_at <= cmd.step:
                 self.flush_at = -1
             self.flush()
+        self.sim.state()  # the rest of the new state's geometry, for the next step: while the controller works
 
     def close(self) -> None:
         log(self.name, f"stopped at step {self.step}/{self.total_steps}; clamped commands: {self.clamped}"

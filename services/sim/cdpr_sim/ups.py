@@ -83,6 +83,7 @@ from numpy.typing import ArrayLike
 
 from cdpr.mechanics.robot import Robot
 from cdpr.mechanics.rotation import Array
+from cdpr.protocol import State
 from cdpr_sim.core import (
     PlatformBody,
     PlatformState,
@@ -91,6 +92,7 @@ from cdpr_sim.core import (
     check_dt,
     clamp_tensions,
     start_pose,
+    state_message,
 )
 
 LINK_MASS = 1e-4  # kg, each of the two virtual links of a leg (module docstring: why)
@@ -232,6 +234,10 @@ class UpsSim:
         s = self._snapshot()
         return PlatformState.of(self.step_count, self.t, s.position, s.rotation, s.twist, s.lengths, s.rates,
                                 self._tensions)
+
+    def message(self, clamped: int) -> State:
+        """The current state as a ``sim/state`` message."""
+        return state_message(self.state(), clamped)
 
     def closure_errors(self) -> Array:
         """(m,) distance, m, between each leg's end and its platform point (the spherical joints' gaps)."""

@@ -80,6 +80,7 @@ from cdpr.mechanics.kinematics import cable_geometry, inverse_kinematics
 from cdpr.mechanics.robot import Robot
 from cdpr.mechanics.rotation import Array, cross_rows
 from cdpr.mechanics.tda import make_tda
+from cdpr.protocol import State
 from cdpr_sim.core import (
     PlatformBody,
     PlatformState,
@@ -88,6 +89,7 @@ from cdpr_sim.core import (
     check_dt,
     clamp_tensions,
     start_pose,
+    state_message,
 )
 
 CommandKind = Literal["tensions", "lengths"]
@@ -396,6 +398,10 @@ class WinchSim(ABC):
         g = self._read()
         return PlatformState.of(self.step_count, self.t, g.position, g.rotation, g.twist, g.lengths, g.rates,
                                 self._tensions)
+
+    def message(self, clamped: int) -> State:
+        """The current state as a ``sim/state`` message."""
+        return state_message(self.state(), clamped)
 
     def encoder_lengths(self) -> Array:
         """(m,) the unstretched lengths the winches have paid out, r θ (what drum encoders measure)."""

@@ -40,14 +40,20 @@ class CableKinematics:
         return -self.wrench_matrix.T
 
 
-def _chords(frame_points: Array, platform_points: Array, position: Array, R: Array
-            ) -> tuple[Array, Array, Array, Array, Array]:
-    """Eq. 2 for every cable: ``(arms R b_i, vectors l_i, lengths, unit d_i, moments (R b_i) × d_i)``.
-    The one place the cable geometry is computed; a zero length gives NaN directions (and a numpy
-    warning, which callers that expect it silence)."""
+def cable_vectors(frame_points: Array, platform_points: Array, position: Array, R: Array
+                  ) -> tuple[Array, Array, Array]:
+    """Eq. 2 for every cable: ``(arms R b_i, vectors l_i, lengths ‖l_i‖)``, each row a cable. The one
+    place cable lengths are computed (:func:`cable_geometry` and the others build on it)."""
     arms = platform_points @ R.T  # (m, 3) rows R b_i
     vectors = frame_points - position - arms  # rows l_i, platform → frame
-    lengths = np.sqrt(np.einsum("ij,ij->i", vectors, vectors))
+    return arms, vectors, np.sqrt(np.einsum("ij,ij->i", vectors, vectors))
+
+
+def _chords(frame_points: Array, platform_points: Array, position: Array, R: Array
+            ) -> tuple[Array, Array, Array, Array, Array]:
+    """:func:`cable_vectors` and the directions: ``(arms, vectors, lengths, unit d_i, moments (R b_i) × d_i)``.
+    A zero length gives NaN directions (and a numpy warning, which callers that expect it silence)."""
+    arms, vectors, lengths = cable_vectors(frame_points, platform_points, position, R)
     d = vectors / lengths[:, None]
     return arms, vectors, lengths, d, cross_rows(arms, d)
 

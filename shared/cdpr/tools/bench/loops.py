@@ -40,7 +40,7 @@ def monolithic_steps(scenario: Scenario, steps: int, timers: dict[str, float] | 
     from cdpr.runtime.registry import node_class
 
     sim_node = node_class("sim")
-    sim, state_message = sim_node.make_core(scenario), sim_node.state_message  # type: ignore[attr-defined]
+    sim = sim_node.make_core(scenario)
     core = node_class("controller").make_core(scenario)
     setpoint_at = node_class("trajectory").make_core(scenario)
     m, dt = scenario.robot.m, scenario.dt
@@ -51,7 +51,7 @@ def monolithic_steps(scenario: Scenario, steps: int, timers: dict[str, float] | 
             tick = Tick(k, k * dt).encode()
             Tick.decode(tick)
             setpoint = setpoint_at(Tick.decode(tick).step).encode()
-            state = state_message(sim.state(), 0).encode()
+            state = sim.message(0).encode()
             State.decode(state)  # the clock
             st, sp = State.decode(state, m), Setpoint.decode(setpoint)
             result = core.step(st, sp)
@@ -69,7 +69,7 @@ def monolithic_steps(scenario: Scenario, steps: int, timers: dict[str, float] | 
         c = clock()
         setpoint = sp_msg.encode()
         d = clock()
-        st_msg = state_message(sim.state(), 0)
+        st_msg = sim.message(0)
         e = clock()
         state = st_msg.encode()
         State.decode(state)
