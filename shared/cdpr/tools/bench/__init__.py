@@ -8,8 +8,9 @@ when the machine is shared and its absolute speed drifts):
    distribution), trajectory setpoint and the encoding/decoding of the four messages of a step: the
    ceiling of the distributed loop;
 2. ``distributed``: ``cdpr run SCENARIO`` (fast mode) as a subprocess: steps/s, RTF, its ratio to (1),
-   and the CPU each process spends per step; interleaved with the same session recorded to an ``.rrd``,
-   to an ``.rrd`` and an ``.mcap``, and composed in one process (``--in-process``);
+   and the CPU each process spends per step; with the same session recorded to an ``.rrd``, to an
+   ``.rrd`` and an ``.mcap``, and composed in one process (``--in-process``). (1) and (2) are measured
+   in rounds, interleaved (the monolithic loop, then each variant), each ratio within its round;
 3. ``zenoh_rtt``: a raw Zenoh round trip with the project's settings — two processes on loopback,
    each answering in its :class:`cdpr.runtime.transport.Inbox` callback, ``PUBLISH_OPTS``; as clients of a
    router (how remote participants talk) and as peers linked directly (how ``cdpr run``'s services
@@ -42,7 +43,6 @@ from cdpr.config.scenario import load_scenario
 from cdpr.tools.bench.loops import (
     bench_cables,
     bench_loop_variants,
-    bench_monolithic,
     bench_realtime,
     bench_sessions,
     bench_startup,
@@ -138,13 +138,12 @@ def run_bench(plan: BenchPlan, scenario: str = "caroca_15kg", out: Path | None =
 
     def part(name: str, message: str) -> None:
         load[name] = os.getloadavg()[0]
-        log(f"{len(load)}/7 {message}")
+        log(f"{len(load)}/6 {message}")
 
-    part("monolithic", f"monolithic loop ({plan.mono_steps} steps x {plan.mono_repeats})")
-    result["monolithic"] = bench_monolithic(sc, plan.mono_steps, plan.mono_repeats)
-    part("distributed", f"distributed loop: multi-process, recording (.rrd; .rrd and .mcap), in-process "
-                        f"(x {plan.loop_repeats})")
-    loops = bench_loop_variants(scenario, plan.loop_duration, plan.loop_repeats, result["monolithic"]["steps_per_s"])
+    part("loops", f"{plan.loop_repeats} round(s): monolithic loop ({plan.mono_steps} steps x {plan.mono_repeats}), "
+                  "then the distributed loop: multi-process, recording (.rrd; .rrd and .mcap), in-process")
+    result["monolithic"], loops = bench_loop_variants(sc, plan.loop_duration, plan.loop_repeats, plan.mono_steps,
+                                                      plan.mono_repeats)
     bare = loops["multi_process"]["steps_per_s"]
     loops["recording_cost"] = 1.0 - loops["multi_process_recording"]["steps_per_s"] / bare
     loops["recording_both_cost"] = 1.0 - loops["multi_process_recording_both"]["steps_per_s"] / bare

@@ -89,18 +89,12 @@ def monolithic_steps(scenario: Scenario, steps: int, timers: dict[str, float] | 
     return clock() - t0
 
 
-def bench_monolithic(scenario: Scenario, steps: int, repeats: int) -> dict[str, Any]:
+def monolithic_timers(scenario: Scenario, steps: int) -> dict[str, float]:
+    """Microseconds per step of each part of the monolithic loop (one timed run)."""
     steps = min(steps, scenario.total_steps)
-    rates = [steps / monolithic_steps(scenario, steps) for _ in range(repeats)]
     timers = dict.fromkeys(("sim", "controller", "trajectory", "messages"), 0.0)
     monolithic_steps(scenario, steps, timers)
-    return {
-        "steps": steps,
-        "repeats": repeats,
-        "steps_per_s": statistics.median(rates),
-        "runs_steps_per_s": rates,
-        "us_per_step": {k: 1e6 * v / steps for k, v in timers.items()},
-    }
+    return {k: 1e6 * v / steps for k, v in timers.items()}
 
 
 # --------------------------------------------------------------------------------------------------
@@ -231,28 +225,33 @@ LOOP_VARIANTS: dict[str, tuple[str, ...]] = {
 }
 
 
-def bench_loop_variants(scenario: str, duration: float | None, repeats: int, monolithic: float) -> dict[str, Any]:
-    """The distributed loop in each of :data:`LOOP_VARIANTS`, interleaved (A B C D A B C D …) so that a
-    change in the machine's load hits every variant alike; each with its ratio to the monolithic loop."""
+def bench_loop_variants(scenario: Scenario, duration: float | None, rounds: int, mono_steps: int,
+                        mono_repeats: int) -> tuple[dict[str, Any], dict[str, Any]]:
+    """The monolithic loop and the distributed loop in each of :data:`LOOP_VARIANTS`, interleaved: each
+    of ``rounds`` rounds runs the monolithic loop ``mono_repeats`` times, then every variant once (M M M
+    A B C D, M M M A B C D, …), so that a change in the machine's speed hits them all alike. A variant's
+    ratio to the monolithic loop is the median over the rounds of its rate over the monolithic rate of
+    the same round (the median of that round's runs). Returns ``(monolithic, variants)``."""
+    steps = min(mono_steps, scenario.total_steps)
     extra = [] if duration is None else ["--duration", repr(duration)]
+    mono: list[list[float]] = []
     runs: dict[str, list[dict[str, Any]]] = {name: [] for name in LOOP_VARIANTS}
     with tempfile.TemporaryDirectory(prefix="cdpr-bench-") as tmp:
-        for _ in range(repeats):
+        for _ in range(rounds):
+            mono.append([steps / monolithic_steps(scenario, steps) for _ in range(mono_repeats)])
             for name, args in LOOP_VARIANTS.items():
-                argv = [scenario, *extra, *(a.format(tmp=tmp) for a in args)]
+                argv = [scenario.source, *extra, *(a.format(tmp=tmp) for a in args)]
                 runs[name].append(_run_sessions([argv], name.replace("_", ""), 900.0)[0])
-    return {name: _loop_result(r, monolithic) for name, r in runs.items()}
+    by_round = [statistics.median(rates) for rates in mono]
+    all_runs = [rate for rates in mono for rate in rates]
+    monolithic = {"steps": steps, "repeats": len(all_runs), "steps_per_s": statistics.median(all_runs),
+                  "runs_steps_per_s": all_runs, "rounds_steps_per_s": by_round,
+                  "us_per_step": monolithic_timers(scenario, steps)}
+    return monolithic, {name: _loop_result(r, by_round) for name, r in runs.items()}
 
 
-def bench_distributed(
-    scenario: str, duration: float | None, repeats: int, monolithic: float
-) -> dict[str, Any]:
-    extra = [] if duration is None else ["--duration", repr(duration)]
-    runs = [_run_sessions([[scenario, *extra]], "loop", 900.0)[0] for _ in range(repeats)]
-    return _loop_result(runs, monolithic)
-
-
-def _loop_result(runs: list[dict[str, Any]], monolithic: float) -> dict[str, Any]:
+def _loop_result(runs: list[dict[str, Any]], monolithic: list[float]) -> dict[str, Any]:
+    """The figures of a variant's runs; ``monolithic``: the monolithic rate of each run's round."""
     repeats = len(runs)
     rate = statistics.median(r["rate"] for r in runs)
     cpu = [r["cpu_us_per_step"] for r in runs if r["cpu_us_per_step"] is not None]
@@ -265,7 +264,7 @@ def _loop_result(runs: list[dict[str, Any]], monolithic: float) -> dict[str, Any
         "repeats": repeats,
         "steps_per_s": rate,
         "rtf": statistics.median(r["rtf"] for r in runs),
-        "ratio_to_monolithic": rate / monolithic,
+        "ratio_to_monolithic": statistics.median(r["rate"] / m for r, m in zip(runs, monolithic, strict=True)),
         "runs_steps_per_s": [r["rate"] for r in runs],
         "cpu_us_per_step": statistics.median(cpu) if cpu else None,
         "cpu_us_per_step_by_process": {k: statistics.median(v) for k, v in by_process.items()},

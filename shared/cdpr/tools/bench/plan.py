@@ -5,8 +5,9 @@ from __future__ import annotations
 import sys
 from dataclasses import dataclass
 
-BENCH_VERSION = 3  # 2: loop variants (recording, in-process), deliveries, start-up; 3: the recorder writing
-# an .rrd and an .mcap (loops.multi_process_recording_both, loops.recording_both_cost, its target)
+BENCH_VERSION = 4  # 2: loop variants (recording, in-process), deliveries, start-up; 3: the recorder writing
+# an .rrd and an .mcap (loops.multi_process_recording_both, loops.recording_both_cost, its target); 4: the
+# monolithic loop measured in each round of the variants (monolithic.rounds_steps_per_s), ratios by round
 
 
 @dataclass(frozen=True)
@@ -14,9 +15,9 @@ class BenchPlan:
     """How much of each part to run."""
 
     mono_steps: int  # steps of the monolithic loop (capped at the scenario's)
-    mono_repeats: int
+    mono_repeats: int  # monolithic runs in each round of the loops
     loop_duration: float | None  # sim seconds of the distributed run (None: the whole scenario)
-    loop_repeats: int
+    loop_repeats: int  # rounds: the monolithic loop, then each variant of the distributed loop
     rtt_count: int  # timed round trips
     realtime_duration: float  # sim seconds in realtime mode
     tda_sizes: tuple[int, ...]
@@ -29,7 +30,7 @@ class BenchPlan:
 
 
 FULL = BenchPlan(
-    mono_steps=11000, mono_repeats=3, loop_duration=None, loop_repeats=3, rtt_count=20000,
+    mono_steps=11000, mono_repeats=1, loop_duration=None, loop_repeats=3, rtt_count=20000,
     realtime_duration=60.0, tda_sizes=(4, 8, 12, 16), tda_calls=3000,
     session_counts=(1, 2, 4, 8), session_duration=6.0, cable_counts=(4, 8, 12, 16), cable_duration=6.0,
 )
