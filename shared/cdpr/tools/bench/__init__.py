@@ -9,8 +9,8 @@ when the machine is shared and its absolute speed drifts):
    ceiling of the distributed loop;
 2. ``distributed``: ``cdpr run SCENARIO`` (fast mode) as a subprocess: steps/s, RTF, its ratio to (1),
    and the CPU each process spends per step; with the same session recorded to an ``.rrd``, to an
-   ``.rrd`` and an ``.mcap``, and composed in one process (``--in-process``). (1) and (2) are measured
-   in rounds, interleaved (the monolithic loop, then each variant), each ratio within its round;
+   ``.rrd`` and an ``.mcap``, and composed in one process (``--in-process``). Every run of (2) comes
+   right after a run of (1), and its ratio is to that run (M A M B M C M D, then again);
 3. ``zenoh_rtt``: a raw Zenoh round trip with the project's settings — two processes on loopback,
    each answering in its :class:`cdpr.runtime.transport.Inbox` callback, ``PUBLISH_OPTS``; as clients of a
    router (how remote participants talk) and as peers linked directly (how ``cdpr run``'s services
@@ -140,8 +140,8 @@ def run_bench(plan: BenchPlan, scenario: str = "caroca_15kg", out: Path | None =
         load[name] = os.getloadavg()[0]
         log(f"{len(load)}/6 {message}")
 
-    part("loops", f"{plan.loop_repeats} round(s): monolithic loop ({plan.mono_steps} steps x {plan.mono_repeats}), "
-                  "then the distributed loop: multi-process, recording (.rrd; .rrd and .mcap), in-process")
+    part("loops", f"distributed loop: multi-process, recording (.rrd; .rrd and .mcap), in-process (x "
+                  f"{plan.loop_repeats}), each after the monolithic loop ({plan.mono_steps} steps)")
     result["monolithic"], loops = bench_loop_variants(sc, plan.loop_duration, plan.loop_repeats, plan.mono_steps,
                                                       plan.mono_repeats)
     bare = loops["multi_process"]["steps_per_s"]

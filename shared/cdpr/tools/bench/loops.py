@@ -227,31 +227,31 @@ LOOP_VARIANTS: dict[str, tuple[str, ...]] = {
 
 def bench_loop_variants(scenario: Scenario, duration: float | None, rounds: int, mono_steps: int,
                         mono_repeats: int) -> tuple[dict[str, Any], dict[str, Any]]:
-    """The monolithic loop and the distributed loop in each of :data:`LOOP_VARIANTS`, interleaved: each
-    of ``rounds`` rounds runs the monolithic loop ``mono_repeats`` times, then every variant once (M M M
-    A B C D, M M M A B C D, …), so that a change in the machine's speed hits them all alike. A variant's
-    ratio to the monolithic loop is the median over the rounds of its rate over the monolithic rate of
-    the same round (the median of that round's runs). Returns ``(monolithic, variants)``."""
+    """The distributed loop in each of :data:`LOOP_VARIANTS`, each run right after the monolithic loop it
+    is compared with: ``rounds`` rounds of M A M B M C M D (M: the monolithic loop, ``mono_repeats``
+    times, its median), so that the host's changes of speed, which on a shared machine come and go
+    within a minute, hit both sides of a ratio alike. A variant's ratio to the monolithic loop is the
+    median of its runs' ratios to their own M. Returns ``(monolithic, variants)``."""
     steps = min(mono_steps, scenario.total_steps)
     extra = [] if duration is None else ["--duration", repr(duration)]
-    mono: list[list[float]] = []
+    mono: list[float] = []
     runs: dict[str, list[dict[str, Any]]] = {name: [] for name in LOOP_VARIANTS}
+    paired: dict[str, list[float]] = {name: [] for name in LOOP_VARIANTS}
     with tempfile.TemporaryDirectory(prefix="cdpr-bench-") as tmp:
         for _ in range(rounds):
-            mono.append([steps / monolithic_steps(scenario, steps) for _ in range(mono_repeats)])
             for name, args in LOOP_VARIANTS.items():
+                rates = [steps / monolithic_steps(scenario, steps) for _ in range(mono_repeats)]
+                mono += rates
+                paired[name].append(statistics.median(rates))
                 argv = [scenario.source, *extra, *(a.format(tmp=tmp) for a in args)]
                 runs[name].append(_run_sessions([argv], name.replace("_", ""), 900.0)[0])
-    by_round = [statistics.median(rates) for rates in mono]
-    all_runs = [rate for rates in mono for rate in rates]
-    monolithic = {"steps": steps, "repeats": len(all_runs), "steps_per_s": statistics.median(all_runs),
-                  "runs_steps_per_s": all_runs, "rounds_steps_per_s": by_round,
-                  "us_per_step": monolithic_timers(scenario, steps)}
-    return monolithic, {name: _loop_result(r, by_round) for name, r in runs.items()}
+    monolithic = {"steps": steps, "repeats": len(mono), "steps_per_s": statistics.median(mono),
+                  "runs_steps_per_s": mono, "us_per_step": monolithic_timers(scenario, steps)}
+    return monolithic, {name: _loop_result(r, paired[name]) for name, r in runs.items()}
 
 
 def _loop_result(runs: list[dict[str, Any]], monolithic: list[float]) -> dict[str, Any]:
-    """The figures of a variant's runs; ``monolithic``: the monolithic rate of each run's round."""
+    """The figures of a variant's runs; ``monolithic``: the monolithic rate measured right before each."""
     repeats = len(runs)
     rate = statistics.median(r["rate"] for r in runs)
     cpu = [r["cpu_us_per_step"] for r in runs if r["cpu_us_per_step"] is not None]
@@ -266,6 +266,7 @@ def _loop_result(runs: list[dict[str, Any]], monolithic: list[float]) -> dict[st
         "rtf": statistics.median(r["rtf"] for r in runs),
         "ratio_to_monolithic": statistics.median(r["rate"] / m for r, m in zip(runs, monolithic, strict=True)),
         "runs_steps_per_s": [r["rate"] for r in runs],
+        "monolithic_steps_per_s": monolithic,  # the monolithic loop right before each run
         "cpu_us_per_step": statistics.median(cpu) if cpu else None,
         "cpu_us_per_step_by_process": {k: statistics.median(v) for k, v in by_process.items()},
         "state_digest": runs[0]["state_digest"],

@@ -7,7 +7,7 @@ from dataclasses import dataclass
 
 BENCH_VERSION = 4  # 2: loop variants (recording, in-process), deliveries, start-up; 3: the recorder writing
 # an .rrd and an .mcap (loops.multi_process_recording_both, loops.recording_both_cost, its target); 4: the
-# monolithic loop measured in each round of the variants (monolithic.rounds_steps_per_s), ratios by round
+# monolithic loop measured right before each run of a variant (loops.*.monolithic_steps_per_s), ratios by pair
 
 
 @dataclass(frozen=True)
@@ -15,9 +15,9 @@ class BenchPlan:
     """How much of each part to run."""
 
     mono_steps: int  # steps of the monolithic loop (capped at the scenario's)
-    mono_repeats: int  # monolithic runs in each round of the loops
+    mono_repeats: int  # monolithic runs before each run of a variant of the distributed loop
     loop_duration: float | None  # sim seconds of the distributed run (None: the whole scenario)
-    loop_repeats: int  # rounds: the monolithic loop, then each variant of the distributed loop
+    loop_repeats: int  # runs of each variant
     rtt_count: int  # timed round trips
     realtime_duration: float  # sim seconds in realtime mode
     tda_sizes: tuple[int, ...]
@@ -35,7 +35,7 @@ FULL = BenchPlan(
     session_counts=(1, 2, 4, 8), session_duration=6.0, cable_counts=(4, 8, 12, 16), cable_duration=6.0,
 )
 QUICK = BenchPlan(
-    mono_steps=2000, mono_repeats=3, loop_duration=4.0, loop_repeats=1, rtt_count=2000,
+    mono_steps=2000, mono_repeats=1, loop_duration=4.0, loop_repeats=1, rtt_count=2000,
     realtime_duration=3.0, tda_sizes=(4, 8, 16), tda_calls=400,
     session_counts=(1, 2, 4), session_duration=3.0, cable_counts=(4, 16), cable_duration=3.0,
 )
