@@ -9,8 +9,8 @@ when the machine is shared and its absolute speed drifts):
    ceiling of the distributed loop;
 2. ``distributed``: ``cdpr run SCENARIO`` (fast mode) as a subprocess: steps/s, RTF, its ratio to (1),
    and the CPU each process spends per step; with the same session recorded to an ``.rrd``, to an
-   ``.rrd`` and an ``.mcap``, and composed in one process (``--in-process``). Every run of (2) comes
-   right after a run of (1), and its ratio is to that run (M A M B M C M D, then again);
+   ``.rrd`` and an ``.mcap``, and composed in one process (``--in-process``). (1) and (2) are
+   interleaved (M A M B M C M D, three times), each ratio the median of (2)'s runs over all of (1)'s;
 3. ``zenoh_rtt``: a raw Zenoh round trip with the project's settings — two processes on loopback,
    each answering in its :class:`cdpr.runtime.transport.Inbox` callback, ``PUBLISH_OPTS``; as clients of a
    router (how remote participants talk) and as peers linked directly (how ``cdpr run``'s services

@@ -7,7 +7,7 @@ from dataclasses import dataclass
 
 BENCH_VERSION = 4  # 2: loop variants (recording, in-process), deliveries, start-up; 3: the recorder writing
 # an .rrd and an .mcap (loops.multi_process_recording_both, loops.recording_both_cost, its target); 4: the
-# monolithic loop measured right before each run of a variant (loops.*.monolithic_steps_per_s), ratios by pair
+# monolithic loop measured before each run of a variant (M A M B M C M D), no longer first and apart
 
 
 @dataclass(frozen=True)
