@@ -483,8 +483,8 @@ class Telemetry:
     ``states``: the states the sim published on ``sim/state`` since the last block (every one, in step
     order; a block sent on request may repeat the current one); ``commands``: the commands it applied
     over the same steps (the first valid one of each step), each with ``lags[i]``, the seconds from the
-    tick that allowed the step to its integration (realtime: how far the loop ran behind the clock; 0
-    when the tick came first), and the controller's ``solve_time`` when it sent one; ``sensors``: the
+    step's state going out to the start of its integration (the controller's answer time plus any wait
+    for the clock's grant), and the controller's ``solve_time`` when it sent one; ``sensors``: the
     sensor readings taken with the states (empty without sensors). On the wire every column is a flat
     array (see docs/protocol.md).
     """
