@@ -348,7 +348,9 @@ class _Host:
 def _freeze() -> None:
     """Everything made so far (modules, the nodes, their models) lives as long as the process: out of
     the garbage collector's sight, a full collection no longer scans ~70 000 objects (~30 ms, with the
-    GIL held: a stalled step)."""
+    GIL held: a stalled step). Called before the node's liveliness token is declared: this collection
+    itself takes tens of milliseconds, during which no Zenoh callback of the process can run (tick 0
+    reached a sim 47 ms late when it came after the token)."""
     gc.collect()
     gc.freeze()
 
@@ -377,8 +379,8 @@ def serve(node: Node, conf: zenoh.Config, stop: StopFlag | None = None) -> int:
         inbox = Inbox(dispatcher)
         if dispatcher is None:
             stop.on_set(inbox.wake)  # a queued node: ends the main thread's wait for the next event
+        _freeze()  # before the token: a peer that sees it may send at once, and the collection holds the GIL
         host = _Host(node, session, inbox, parent)
-        _freeze()
         try:
             if dispatcher is not None:
                 while not node.done and not stop and dispatcher.error is None:
@@ -428,10 +430,10 @@ def serve_composed(nodes: list[Node], session: zenoh.Session, stop: StopFlag | N
             host.close()
 
     try:
+        _freeze()  # before the first token (see serve)
         for node in nodes:
             dispatcher = _Dispatcher(node, _event_handler(node), wake, stop)
             runners.append((node, dispatcher, _Host(node, session, Inbox(dispatcher), None)))
-        _freeze()
         while not stop:
             wake.clear()  # before the turn: a wake-up from now on ends the sleep below
             timeout = math.inf
