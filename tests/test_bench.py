@@ -4,7 +4,11 @@ from __future__ import annotations
 
 import json
 import math
+import os
 import statistics
+import subprocess
+import sys
+import time
 from pathlib import Path
 
 import numpy as np
@@ -14,6 +18,7 @@ import yaml
 from cdpr.config.robot import load_robot
 from cdpr.config.scenario import load_scenario
 from cdpr.tools.bench import QUICK, robot_spec, rt_priority_allowed, scenario_yaml, tda_path
+from cdpr.tools.bench.loops import _process_cpu
 from conftest import cdpr, wait_no_processes
 
 pytestmark = pytest.mark.slow
@@ -190,3 +195,24 @@ def test_generated_robots_load_and_hold_the_platform(tmp_path: Path, m: int) -> 
     assert all(abs(w[2] - sc.robot.mass * 9.81) < 0.2 * sc.robot.mass * 9.81 for _, w in path)
     assert robot_spec(m) == spec  # deterministic
     assert np.isfinite([c["frame"] for c in spec["cables"]]).all()
+
+
+def test_process_cpu_by_role_and_none_once_a_child_has_exited() -> None:
+    """The per-process CPU of a session's tree: by role from the command lines while the processes
+    run, and no figure at all once one of them has exited and not been reaped (a zombie has no
+    command line: the session's last progress line can come while its services are leaving)."""
+    child = subprocess.Popen([sys.executable, "-c", "import time; time.sleep(30)", "-m", "cdpr.runtime", "sim"])
+    try:
+        deadline = time.monotonic() + 10
+        while (cpu := _process_cpu(os.getpid())) is not None and "sim" not in cpu and time.monotonic() < deadline:
+            time.sleep(0.05)
+        assert cpu is not None
+        assert "sim" in cpu  # `… -m cdpr.runtime sim` on its command line
+        child.kill()
+        while (state := Path(f"/proc/{child.pid}/stat").read_text().rsplit(")", 1)[1].split()[0]) != "Z":
+            assert time.monotonic() < deadline, state
+            time.sleep(0.05)
+        assert _process_cpu(os.getpid()) is None
+    finally:
+        child.kill()
+        child.wait()

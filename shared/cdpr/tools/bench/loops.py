@@ -125,9 +125,10 @@ def _run_queue_wait(pid: int) -> float:
     return total / 1e9
 
 
-def _process_cpu(root: int, waits: dict[str, float] | None = None) -> dict[str, float]:
+def _process_cpu(root: int, waits: dict[str, float] | None = None) -> dict[str, float] | None:
     """CPU seconds (user + system) of ``root`` and its descendants, by role (``run``, ``sim``, …);
-    with ``waits``, their seconds waiting for a CPU, by role, added to it."""
+    with ``waits``, their seconds waiting for a CPU, by role, added to it. None once one of them has
+    exited (a zombie: its command line, hence its role, and its threads' waits are gone)."""
     tick = os.sysconf("SC_CLK_TCK")
     out: dict[str, float] = {}
     todo = [root]
@@ -141,6 +142,8 @@ def _process_cpu(root: int, waits: dict[str, float] | None = None) -> dict[str, 
                 argv = f.read().replace("\0", " ").split()  # the arguments, or the title of a forked service
         except (OSError, IndexError):
             continue
+        if fields[0] == "Z":
+            return None
         # `python -m cdpr run …` is "run"; its services are `python -m cdpr.runtime NAME …`
         launcher = next((a for a in ("cdpr", "cdpr.runtime") if a in argv[:-1]), None)
         role = argv[argv.index(launcher) + 1] if launcher is not None else "other"
@@ -172,7 +175,8 @@ class SessionRun:
             match = _PROGRESS.search(line)
             if match and int(match.group(1)) > 0:
                 waits: dict[str, float] = {}
-                self._marks.append((int(match.group(1)), _process_cpu(self.proc.pid, waits), waits))
+                if (cpu := _process_cpu(self.proc.pid, waits)) is not None:  # not once the services leave
+                    self._marks.append((int(match.group(1)), cpu, waits))
             elif not match:
                 self._stderr.append(line)
 
