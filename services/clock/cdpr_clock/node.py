@@ -256,4 +256,5 @@ class ClockNode(Node):
         self.set_state("finished", "", now)
         st = self.core.stats(now)
         log(self.name, f"finished {st['steps']} steps in {st['wall_time']:.2f} s "
-            f"({st['rate']:.0f} steps/s, RTF {st['rtf']:.2f}, late ticks {st['late_ticks']}, resends {st['resends']})")
+            f"({st['rate']:.0f} steps/s, RTF {st['rtf']:.2f}, late ticks {st['late_ticks']}, resends {st['resends']}, "
+            f"handshake repeats {st['handshake_repeats']})")
