@@ -337,8 +337,8 @@ def run_session(
     # have to forward); the router then only introduces them and serves the monitor. With remote
     # participants, every service is a client of the router, as the remote ones are.
     mode_args = ["--zenoh-mode", "client"] if remote else ["--zenoh-mode", "peer", "--listen", PEER_LISTEN]
-    common = [scenario.source, "--session", session_id, "--duration", repr(scenario.duration),
-              *mode_args, "--connect", local]
+    session_args = [scenario.source, "--session", session_id, "--duration", repr(scenario.duration)]
+    common = [*session_args, *mode_args, "--connect", local]
     loop = [*common, "--rt-priority", str(rt_priority)] if rt_priority is not None and not in_process else common
     argv = {"clock": [*loop, "--mode", mode, "--expect", ",".join(expected)]}
     argv.update({name: loop for name in ("sim", "trajectory", "controller") if name not in without})
@@ -347,8 +347,7 @@ def run_session(
         # (no hop to save), and the router declares its subscribers to every peer before it passes its
         # liveliness token on to the clock, so the sim's first telemetry block (the handshake's report)
         # cannot miss it; a peer learns of a peer only once their direct link is up, a moment later.
-        rec = [scenario.source, "--session", session_id, "--duration", repr(scenario.duration),
-               "--zenoh-mode", "client", "--connect", local]
+        rec = [*session_args, "--zenoh-mode", "client", "--connect", local]
         if rrd:
             Path(rrd).parent.mkdir(parents=True, exist_ok=True)
             rec += ["--rrd", rrd]
