@@ -228,6 +228,22 @@ def test_the_recorder_needs_a_sink_and_a_free_port() -> None:
             LiveServer(s.getsockname()[1])
 
 
+def test_files_alone_take_large_batches_a_live_viewer_small_ones(tmp_path: Path) -> None:
+    from cdpr.config.scenario import load_scenario
+    from cdpr.protocol import Keys
+    from cdpr_recorder import node
+
+    sc = load_scenario("caroca_15kg")
+    for kwargs, steps in (({"rrd": str(tmp_path / "a.rrd"), "mcap": str(tmp_path / "a.mcap")}, node.FILE_BATCH_STEPS),
+                          ({"mcap": str(tmp_path / "b.mcap"), "foxglove": 0}, node.LIVE_BATCH_STEPS)):
+        rec = node.RecorderNode(sc, Keys("x"), **kwargs)
+        try:
+            assert rec.core.params.batch_steps == steps
+        finally:
+            rec.close()
+    assert node.LIVE_BATCH_STEPS < node.FILE_BATCH_STEPS
+
+
 # --------------------------------------------------------------------------------------------------
 # Real sessions
 
