@@ -259,6 +259,37 @@ def test_in_process_refuses_remote_participants() -> None:
         run_session(load_scenario("caroca_15kg"), without=("controller",), in_process=True)
 
 
+def test_in_process_waits_for_the_clocks_last_status(monkeypatch: pytest.MonkeyPatch, session_id: str,
+                                                     capsys: pytest.CaptureFixture[str]) -> None:
+    """The monitor's statuses come through the binding's own thread: the clock's `finished` may reach
+    the queue after the nodes are done (once in a Ray study under load). Delayed on purpose here."""
+    from cdpr.config.scenario import load_scenario
+    from cdpr.runtime.transport import Inbox
+    from cdpr.tools import launch
+
+    class LateInbox(Inbox):
+        def __init__(self, handler: Any = None) -> None:
+            super().__init__(handler)
+            put = self._deliver
+
+            def deliver(event: Any) -> None:
+                if event.kind == "status" and Status.decode(event.payload).state == "finished":
+                    threading.Timer(0.3, put, (event,)).start()
+                else:
+                    put(event)
+
+            self._deliver = deliver
+
+    monkeypatch.setattr(launch, "Inbox", LateInbox)
+    code = launch.run_session(load_scenario("caroca_15kg", {"duration": 0.05}), session_id=session_id, quiet=True,
+                              in_process=True)
+    summary = last_json_line(capsys.readouterr().out)
+    assert code == 0, summary
+    assert summary["exit_ok"], summary
+    assert summary["steps"] == 50
+    assert summary["rate"] > 0.0
+
+
 def _rrd_rows(path: Path, entity: str) -> list[tuple[int, Any]]:
     from rerun.chunk import RrdReader
 
