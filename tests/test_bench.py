@@ -17,7 +17,7 @@ import yaml
 
 from cdpr.config.robot import load_robot
 from cdpr.config.scenario import load_scenario
-from cdpr.tools.bench import QUICK, robot_spec, rt_priority_allowed, scenario_yaml, tda_path
+from cdpr.tools.bench import QUICK, robot_spec, rt_priority_allowed, scenario_yaml, target_line, tda_path
 from cdpr.tools.bench.loops import _process_cpu
 from conftest import cdpr, wait_no_processes
 
@@ -138,6 +138,7 @@ def test_transport_and_realtime(bench: tuple[dict, str]) -> None:
         assert 0.0 <= run["machine_idle_fraction"] <= 1.0
         assert 0.0 <= run["machine_steal_fraction"] <= 1.0
         assert 0.0 < run["probe_on_time_fraction"] <= 1.0  # the sleeping probe reported
+    assert r["targets"]["realtime_on_time>=0.999"]["machine"] == rt["probe_on_time_fraction"]
 
 
 def test_tda_and_scaling(bench: tuple[dict, str]) -> None:
@@ -174,6 +175,14 @@ def test_table_is_printed(bench: tuple[dict, str]) -> None:
                  "realtime",
                  "tension distribution", "scaling", "targets", "load as each part started"):
         assert text in stdout
+
+
+def test_a_missed_realtime_target_shows_what_the_machine_gave_a_sleeping_thread() -> None:
+    missed = target_line("realtime_on_time>=0.999", {"value": 0.99587, "met": False, "machine": 0.99639})
+    assert missed.endswith("MISSED (a sleeping probe beside it: 99.639 % within 1 ms)")
+    met = target_line("realtime_on_time>=0.999", {"value": 0.9995, "met": True, "machine": 0.9999})
+    assert met.endswith("met")
+    assert target_line("deliveries_per_step<=3", {"value": 3.5, "met": False}).endswith("MISSED")
 
 
 @pytest.mark.parametrize("m", [4, 8, 12, 16])

@@ -100,7 +100,7 @@ def targets(result: dict[str, Any]) -> dict[str, dict[str, Any]]:
         "distributed_steps_per_s>=2000": target(dist["steps_per_s"], dist["steps_per_s"] >= 2000),
         "distributed/monolithic>=0.6": target(ratio := dist["ratio_to_monolithic"], ratio >= 0.6),
         "realtime_on_time>=0.999": target(rt["on_time_fraction"], rt["on_time_fraction"] >= 0.999,
-                                          over_s=rt["duration_s"]),
+                                          over_s=rt["duration_s"], machine=rt["probe_on_time_fraction"]),
         "recording/monolithic>=0.5": target(r := rec["ratio_to_monolithic"], r >= 0.5),
         "recording_cost<=0.15": target(c := loops["recording_cost"], c <= 0.15),
         "recording_both_cost<=0.15": target(c := loops["recording_both_cost"], c <= 0.15),
@@ -111,7 +111,8 @@ def targets(result: dict[str, Any]) -> dict[str, dict[str, Any]]:
     }
     if (fifo := rt.get("rt_priority")) is not None:
         out["realtime_on_time_rt_priority>=0.999"] = target(
-            fifo["on_time_fraction"], fifo["on_time_fraction"] >= 0.999, over_s=fifo["duration_s"])
+            fifo["on_time_fraction"], fifo["on_time_fraction"] >= 0.999, over_s=fifo["duration_s"],
+            machine=fifo["probe_on_time_fraction"])
     tda8 = next((s for s in result["tda"]["sizes"] if s["cables"] == 8), None)
     if tda8 is not None:
         qp, diff = tda8["methods"]["qp"]["median_us"], tda8["qp_max_difference_N"]
@@ -276,6 +277,14 @@ def table(r: dict[str, Any]) -> str:
         lines.append(f"    {c['cables']:<10d}{_fmt(c['steps_per_s']):>16s}{'':>12s}"
                      f"{_fmt(c['cpu_us_per_step']):>14s}")
     lines += ["", "targets"]
-    for name, t in r["targets"].items():
-        lines.append(f"    {name:36s} {_fmt(t['value'], 4):>14s}  {'met' if t['met'] else 'MISSED'}")
+    lines += [target_line(name, t) for name, t in r["targets"].items()]
     return "\n".join(lines)
+
+
+def target_line(name: str, t: dict[str, Any]) -> str:
+    """One row of the targets: name, figure, met or MISSED; a missed realtime target says what the
+    machine gave a thread that only sleeps until each millisecond, in the same minutes (``machine``)."""
+    line = f"    {name:36s} {_fmt(t['value'], 4):>14s}  {'met' if t['met'] else 'MISSED'}"
+    if not t["met"] and t.get("machine") is not None:
+        line += f" (a sleeping probe beside it: {100.0 * t['machine']:.3f} % within 1 ms)"
+    return line
