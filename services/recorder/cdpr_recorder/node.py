@@ -36,7 +36,7 @@ if TYPE_CHECKING:
     from cdpr.recording.mcap import FoxgloveSink
 
 FINISH_GRACE = 1.0  # seconds to wait for the final state after the clock says "finished"
-QUIET_FLUSH = 1.0  # seconds after the last batch at which buffered data is sent even if a batch is not full
+FLUSH_PERIOD = 1.0  # seconds after the last batch at which buffered data is sent even if a batch is not full
 # States per batch. Rerun's cost is mostly per ``send_columns`` call (~0.4 ms for 200 rows, ~0.5 ms for
 # 2 000): files alone take large batches; a live viewer, small ones so that it follows the session closely.
 FILE_BATCH_STEPS = 2000
@@ -201,7 +201,7 @@ class RecorderNode(Node):
 
     def idle(self, now: float) -> None:
         self._check_finished(now)
-        if self.core.pending and now - self.last_flush >= QUIET_FLUSH:
+        if self.core.pending and now - self.last_flush >= FLUSH_PERIOD:
             self.flush()
 
     # -- sinks ------------------------------------------------------------------------------------
