@@ -170,10 +170,12 @@ class Inbox:
     By default each event is put on a queue that the service's loop takes out (:meth:`get`,
     :meth:`drain`). With a ``handler``, Zenoh's receive thread hands each event to it right there (no
     Python thread in between, the binding's ``indirect=False``) and the queue stays empty (see
-    :func:`cdpr.runtime.service.serve`).
+    :func:`cdpr.runtime.service.serve`). ``direct``: queued, but by the thread that delivers the sample,
+    as with a handler — for a session whose publishers all live in this process (the in-process
+    composition), that is the publishing thread: the event is queued before ``put`` returns.
     """
 
-    def __init__(self, handler: Callable[[Event], None] | None = None) -> None:
+    def __init__(self, handler: Callable[[Event], None] | None = None, direct: bool = False) -> None:
         self._q: queue.SimpleQueue[Event] = queue.SimpleQueue()
         self._deliver: Callable[[Event], None] = handler if handler is not None else self._q.put
         # Queued, the callback runs on a Python thread of the binding's (its "indirect" mode): Zenoh's
@@ -181,7 +183,7 @@ class Inbox:
         # session's router, and the launcher's main thread may hold the GIL for a while (a garbage
         # collection of everything it has gathered). With a handler, the callback runs on Zenoh's
         # thread itself: nothing between the message and its handler.
-        self._indirect = handler is None
+        self._indirect = handler is None and not direct
 
     def subscribe(self, session: zenoh.Session, key: str, kind: str) -> zenoh.Subscriber:
         deliver, monotonic, pin = self._deliver, time.monotonic, pin_thread_state

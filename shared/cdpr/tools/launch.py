@@ -55,7 +55,6 @@ from cdpr.runtime.transport import (
 from cdpr.tools.metrics import RunMetrics
 
 PEER_LISTEN = "tcp/127.0.0.1:0"  # where a local child listens for its peers: loopback, any free port
-FINAL_STATUS_WAIT = 2.0  # in-process: seconds to wait for the clock's last status once the nodes are done
 STOP_GRACE = 4.0  # seconds a child gets to stop after SIGTERM before it is killed
 STOP_SIGNALS = {signal.SIGINT, signal.SIGTERM}
 FINISH_GRACE = 60.0  # after a normal end, seconds the services get to leave by themselves (the recorder
@@ -370,7 +369,9 @@ def run_session(
         children.stop(wait_first=0.0)
         raise
     with router as session:
-        inbox = Inbox()
+        # In-process, the clock's statuses are queued as it publishes them: its last one is in once the
+        # nodes are done (through the binding's thread it could come after the final look).
+        inbox = Inbox(direct=in_process)
         stop.on_set(inbox.wake)
         tape = Tape()
         subs = [
@@ -385,12 +386,7 @@ def run_session(
             try:
                 code = serve_composed(nodes, session, stop, on_turn=lambda: monitor.poll(0.0))
             finally:
-                # The monitor's statuses come through a Python thread of the binding's (a queued inbox):
-                # the clock's last one may still be on its way when the nodes are done.
-                until = time.monotonic() + FINAL_STATUS_WAIT
                 monitor.poll(0.0)
-                while not monitor.ended and not stop and time.monotonic() < until:
-                    monitor.poll(0.05)
                 for s in subs:
                     s.undeclare()
             codes = {"in-process": code}
