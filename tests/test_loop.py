@@ -259,8 +259,8 @@ def test_in_process_refuses_remote_participants() -> None:
         run_session(load_scenario("caroca_15kg"), without=("controller",), in_process=True)
 
 
-def test_in_process_waits_for_the_clocks_last_status(monkeypatch: pytest.MonkeyPatch, session_id: str,
-                                                     capsys: pytest.CaptureFixture[str]) -> None:
+def test_in_process_gets_the_clocks_last_status(monkeypatch: pytest.MonkeyPatch, session_id: str,
+                                               capsys: pytest.CaptureFixture[str]) -> None:
     """Through the binding's own thread, the clock's `finished` could reach the monitor's queue after the
     nodes were done (once in a Ray study under load): the run was reported failed. The status's delivery
     is slowed down here; in-process it is queued by the publishing thread, before its `put` returns."""
