@@ -261,7 +261,8 @@ def test_a_stop_signal_ends_the_inbox_wait_also_amid_other_signals(wake: str) ->
     """CPython 3.11's ``SimpleQueue.get(timeout=…)`` interrupted by a signal whose handler returns can wait
     for the next item with no timeout at all: a queued service waiting for messages that no longer come
     (the recorder after the loop stopped) then ignored SIGTERM. ``Inbox.wake`` (which ``serve`` hooks to
-    the stop flag) ends the wait. Without it the same process is seen stuck (the bug is still there)."""
+    the stop flag) ends the wait. Without it the same process is usually seen stuck (the bug is still there);
+    that case skips, naming the reason, on a run where the race did not show."""
     proc = subprocess.Popen([sys.executable, "-c", _STORM, wake], stdout=subprocess.PIPE, text=True)
     try:
         assert proc.stdout is not None
@@ -278,6 +279,8 @@ def test_a_stop_signal_ends_the_inbox_wait_also_amid_other_signals(wake: str) ->
         proc.wait()
     if wake == "wake":
         assert stopped
-    else:
-        # the reason for Inbox.wake: when this fails, CPython no longer has the bug and the wake could go
-        assert not stopped, "SimpleQueue.get no longer hangs after a signal: Inbox.wake may be unnecessary"
+    elif stopped:
+        # The hang is a race inside CPython: it shows on most runs, not on all. When it did not show, this
+        # run says nothing about the need for Inbox.wake (the case above still checked the fix).
+        pytest.skip("the CPython hang did not show in this run (a race outside the project)")
+    # else: the process without the wake ignored SIGTERM — the bug that Inbox.wake works around is there
