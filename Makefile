@@ -48,7 +48,8 @@ test-docker: .venv
 	CDPR_BASE="$$base" $(PY) -m pytest -m docker tests/test_docker.py $(PYTEST_ARGS)
 
 lint: .venv
-	$(VENV)/bin/ruff check . || true
+	$(VENV)/bin/ruff check .
+	$(VENV)/bin/lint-imports --no-cache
 
 clean:
 	rm -rf $(VENV) runs build *.egg-info

@@ -36,8 +36,9 @@ from cdpr.mechanics.tda import make_tda
 from cdpr.protocol import PROTOCOL_VERSION, Command, ProtocolError
 from cdpr.protocol.session import session_info
 from cdpr_controller.core import ControllerCore, stretch_compensated_lengths
-from cdpr_sim.core import PlatformSim, make_sim
+from cdpr_sim.core import PlatformSim
 from cdpr_sim.elastic import ElasticParams, ElasticSim, elastic_tensions, unstretched_lengths
+from cdpr_sim.models import make_sim
 from cdpr_sim.sag import SagParams, SagSim
 from cdpr_sim.winch import WinchParams, WinchState, drive_torque, drum_step, substeps_for
 

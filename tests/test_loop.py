@@ -253,10 +253,10 @@ def test_in_process_composition_gives_the_multi_process_state_stream(session_id:
 def test_in_process_refuses_remote_participants() -> None:
     from cdpr.config.scenario import load_scenario
     from cdpr.errors import InputError
-    from cdpr.tools.launch import run_session
+    from cdpr.tools.launch import RunOptions, run_session
 
     with pytest.raises(InputError, match=r"^--in-process: every node runs in this process"):
-        run_session(load_scenario("caroca_15kg"), without=("controller",), in_process=True)
+        run_session(load_scenario("caroca_15kg"), RunOptions(without=("controller",), in_process=True))
 
 
 def test_in_process_gets_the_clocks_last_status(monkeypatch: pytest.MonkeyPatch, session_id: str,
@@ -281,8 +281,8 @@ def test_in_process_gets_the_clocks_last_status(monkeypatch: pytest.MonkeyPatch,
             self._deliver = deliver
 
     monkeypatch.setattr(launch, "Inbox", LateInbox)
-    code = launch.run_session(load_scenario("caroca_15kg", {"duration": 0.05}), session_id=session_id, quiet=True,
-                              in_process=True)
+    code = launch.run_session(load_scenario("caroca_15kg", {"duration": 0.05}),
+                              launch.RunOptions(session_id=session_id, quiet=True, in_process=True))
     summary = last_json_line(capsys.readouterr().out)
     assert code == 0, summary
     assert summary["exit_ok"], summary

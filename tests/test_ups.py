@@ -27,7 +27,8 @@ from cdpr.mechanics.dynamics import forward_dynamics, mass_matrix
 from cdpr.mechanics.kinematics import inverse_kinematics
 from cdpr.mechanics.robot import Robot
 from cdpr_controller.core import ControllerCore
-from cdpr_sim.core import PlatformSim, PlatformState, StepReport, make_sim, state_message
+from cdpr_sim.core import PlatformSim, PlatformState, StepReport, state_message
+from cdpr_sim.models import make_sim
 from cdpr_sim.ups import LINK_MASS, UpsSim
 from cdpr_trajectory.core import setpoint_at
 from conftest import cdpr, last_json_line

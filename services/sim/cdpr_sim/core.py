@@ -49,7 +49,6 @@ import dartpy as dart
 import numpy as np
 from numpy.typing import ArrayLike
 
-from cdpr.config.scenario import Scenario
 from cdpr.mechanics.kinematics import cable_geometry, cable_vectors
 from cdpr.mechanics.robot import GRAVITY, Robot
 from cdpr.mechanics.rotation import Array, matrix_to_quat
@@ -346,18 +345,3 @@ def state_message(s: PlatformState, clamped: int) -> State:
         tensions=tuple(s.tensions.tolist()),
         clamped=clamped,
     )
-
-
-def make_sim(scenario: Scenario) -> PlatformSim:
-    """The physics of the scenario's cable model (every model has PlatformSim's interface)."""
-    if scenario.cable_model == "ups":
-        from cdpr_sim.ups import UpsSim
-
-        return UpsSim(scenario.robot, scenario.dt, scenario.initial_position, scenario.initial_rotation)
-    if scenario.cable_model in ("elastic", "sag"):  # winch-driven cables: tension or length commands
-        from cdpr_sim.elastic import ElasticSim
-        from cdpr_sim.sag import SagSim
-
-        model = ElasticSim if scenario.cable_model == "elastic" else SagSim
-        return model.from_scenario(scenario)  # type: ignore[return-value]
-    return PlatformSim(scenario.robot, scenario.dt, scenario.initial_position, scenario.initial_rotation)

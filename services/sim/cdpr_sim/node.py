@@ -22,7 +22,7 @@ from cdpr.config.scenario import Scenario
 from cdpr.protocol import Command, Keys, Sensors, State, Telemetry, Tick
 from cdpr.runtime.service import Node
 from cdpr.runtime.transport import Event, Inbox, log
-from cdpr_sim.core import make_sim
+from cdpr_sim.models import make_sim
 from cdpr_sim.sensors import SensorConfig, SensorSuite
 
 TELEMETRY_EVERY = 50  # steps per sim/telemetry block...

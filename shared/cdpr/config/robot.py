@@ -21,7 +21,8 @@ from pydantic import (
 )
 
 from cdpr.config.loading import parse_model, read_yaml, resolve, shipped_names
-from cdpr.mechanics.robot import Mode, Robot, Shape, check_robot, frozen_array
+from cdpr.mechanics.kinematics import check_robot
+from cdpr.mechanics.robot import Mode, Robot, Shape, frozen_array
 from cdpr.mechanics.rotation import rpy_to_matrix
 
 Vec3 = Annotated[list[FiniteFloat], Field(min_length=3, max_length=3)]

@@ -128,30 +128,3 @@ class Robot:
             "frame_points": self.frame_points.tolist(),
             "platform_points": self.platform_points.tolist(),
         }
-
-
-def check_robot(robot: Robot, where: str) -> None:
-    """Checks that need the whole robot: mode-specific geometry and the wrench matrix's rank."""
-    from cdpr.mechanics.kinematics import inverse_kinematics  # kinematics imports this module's types
-
-    if robot.m < robot.dof:
-        raise InputError(
-            f"{where}: cables: {robot.m} cable(s) cannot control the {robot.dof} DOF of a {robot.mode} robot"
-        )
-    if robot.mode == "point_mass" and np.abs(robot.platform_points).max() > 1e-12:
-        raise InputError(f"{where}: cables: a point_mass robot needs every platform point at [0, 0, 0]")
-    if robot.mode == "planar":
-        pts = np.vstack([robot.frame_points, robot.platform_points, robot.home_position[None, :]])
-        if np.abs(pts[:, 1]).max() > 1e-12:
-            raise InputError(f"{where}: cables: a planar robot lives in the x–z plane: every y must be 0")
-    ik = inverse_kinematics(robot, robot.home_position, robot.home_rotation)
-    if np.any(ik.lengths < 1e-9):
-        i = int(np.argmin(ik.lengths))
-        raise InputError(f"{where}: cables.{i}: zero cable length at the home pose")
-    W = ik.wrench_matrix[list(robot.controlled_rows), :]
-    rank = int(np.linalg.matrix_rank(W, tol=1e-9 * max(1.0, float(np.abs(W).max()))))
-    if rank < robot.dof:
-        raise InputError(
-            f"{where}: cables: the wrench matrix has rank {rank} < {robot.dof} at the home pose "
-            "(the cables cannot hold the platform there)"
-        )

@@ -16,7 +16,8 @@ import numpy as np
 
 from cdpr.errors import InputError
 from cdpr.mechanics.control import Gains, Variant, controlled_rows
-from cdpr.mechanics.robot import Robot, Shape, check_robot
+from cdpr.mechanics.kinematics import check_robot
+from cdpr.mechanics.robot import Robot, Shape
 from cdpr.protocol import PROTOCOL_VERSION, ProtocolError, unpack
 
 if TYPE_CHECKING:

@@ -4,7 +4,7 @@ The launcher hosts the session's Zenoh router in its own process (listening on l
 so no external router is needed. When every service runs on this machine (`cdpr run`, `cdpr up`
 without ``--without``) the loop's children are Zenoh peers: each connects to the router, learns the
 others from it and links to them directly on loopback, so a message of the loop takes one hop; the
-recorder stays a client of the router (see ``run_session``). With remote participants every service
+recorder stays a client of the router (see :func:`node_argv`). With remote participants every service
 is a client of the router, like the remote ones. Either way a service declares its subscribers
 before its liveliness token, so when the clock sees the token the service can be reached (a peer may
 learn of a new peer's subscribers a moment later: the clock's first step is a handshake, see
@@ -32,6 +32,8 @@ import sys
 import threading
 import time
 import traceback
+from collections.abc import Iterable
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, NoReturn
 
@@ -269,6 +271,10 @@ class _Monitor:
     def ended(self) -> bool:
         return self.final is not None and self.final.state in ("finished", "aborted")
 
+    @property
+    def finished(self) -> bool:
+        return self.final is not None and self.final.state == "finished"
+
     def poll(self, timeout: float) -> None:
         for ev in self.inbox.drain(timeout):
             if ev.kind == "status":
@@ -285,84 +291,102 @@ class _Monitor:
             log("cdpr", f"step {max(k, 0)}/{n} ({100.0 * max(k, 0) / n:.0f} %), {rate:.0f} steps/s")
 
 
-def run_session(
-    scenario: Scenario,
-    session_id: str = "default",
-    mode: str = "fast",
-    rrd: str | None = None,
-    spawn: bool = False,
-    connect_viewer: str | None = None,
-    summary: str | None = None,
-    quiet: bool = False,
-    without: tuple[str, ...] = (),
-    listen: tuple[str, ...] = (),
-    join_timeout: float | None = None,
-    rt_priority: int | None = None,
-    in_process: bool = False,
-    mcap: str | None = None,
-    foxglove: int | None = None,
-    foxglove_host: str = "127.0.0.1",
-) -> int:
-    """Run a session of ``scenario`` to its end; print (and write to ``summary``) its JSON summary.
+@dataclass(frozen=True)
+class RunOptions:
+    """How ``cdpr run`` / ``cdpr up`` run a session (their command-line options, by the same names)."""
 
-    Multi-process (the default): every node a child process. ``in_process``: every node in this
-    process on one private Zenoh session (:func:`cdpr.runtime.service.serve_composed`), the same
-    node classes and messages; no remote participant can join it.
+    session_id: str = "default"
+    mode: str = "fast"  # "fast" or "realtime" (the clock's --mode)
+    rrd: str | None = None
+    spawn: bool = False
+    connect_viewer: str | None = None
+    summary: str | None = None  # also write the JSON summary here
+    quiet: bool = False  # no progress line
+    without: tuple[str, ...] = ()  # participants that join from elsewhere
+    listen: tuple[str, ...] = ()  # where they connect (the session's router)
+    join_timeout: float | None = None
+    rt_priority: int | None = None
+    in_process: bool = False
+    mcap: str | None = None
+    foxglove: int | None = None
+    foxglove_host: str = "127.0.0.1"
+
+    @property
+    def recording(self) -> bool:
+        return bool(self.rrd or self.spawn or self.connect_viewer or self.mcap or self.foxglove is not None)
+
+    def listen_endpoints(self) -> list[str]:
+        """The session router's endpoints: given, or 7447 on loopback for remote participants, or any port."""
+        return list(self.listen) or [f"tcp/127.0.0.1:{7447 if self.without else free_port()}"]
+
+
+def node_argv(scenario: Scenario, opts: RunOptions, router: str) -> dict[str, list[str]]:
+    """Every node's command line (the in-process composition parses the same options), for a session
+    whose router is reached at ``router``.
+
+    All on this machine, the children are peers, linked to each other directly on loopback (a message
+    takes one hop instead of two through the router, which the launcher's process would have to
+    forward); the router then only introduces them and serves the monitor. With remote participants,
+    every service is a client of the router, as the remote ones are.
     """
-    try:
-        keys = Keys(session_id)
-    except ValueError as exc:
-        raise InputError(f"--session: {exc}") from None
-    if in_process and (without or listen):
-        raise InputError("--in-process: every node runs in this process; --without/--listen need processes")
-    remote = bool(without)
-    listen_eps = list(listen) or ([f"tcp/127.0.0.1:{7447 if remote else free_port()}"])
-    local = local_endpoint(listen_eps[0])
-    recording = bool(rrd or spawn or connect_viewer or mcap or foxglove is not None)
-    expected = ["sim", "trajectory", "controller"] + (["recorder"] if recording else [])
-    if rt_priority is not None:
-        # the session's router (this process); each loop service sets its own (--rt-priority below),
-        # the recorder keeps the normal scheduling (it writes in bursts: no CPU to take from the loop)
-        set_realtime_priority(rt_priority, inherited=in_process)
-    stop = StopFlag().install()
-    conf = isolated_config() if in_process else zenoh_config("router", listen=listen_eps)
-    metrics = RunMetrics()
-    faults: dict[str, dict[str, int]] = {}
-    m = scenario.robot.m
-    started = time.monotonic()
-    exit_ok = False
-    # Every node's command line, once (the in-process composition parses the same options).
-    # All on this machine: the children are peers, linked to each other directly on loopback (a
-    # message takes one hop instead of two through the router, which the launcher's process would
-    # have to forward); the router then only introduces them and serves the monitor. With remote
-    # participants, every service is a client of the router, as the remote ones are.
+    remote = bool(opts.without)
     mode_args = ["--zenoh-mode", "client"] if remote else ["--zenoh-mode", "peer", "--listen", PEER_LISTEN]
-    session_args = [scenario.source, "--session", session_id, "--duration", repr(scenario.duration)]
-    common = [*session_args, *mode_args, "--connect", local]
-    loop = [*common, "--rt-priority", str(rt_priority)] if rt_priority is not None and not in_process else common
-    argv = {"clock": [*loop, "--mode", mode, "--expect", ",".join(expected)]}
-    argv.update({name: loop for name in ("sim", "trajectory", "controller") if name not in without})
-    if recording:
+    session_args = [scenario.source, "--session", opts.session_id, "--duration", repr(scenario.duration)]
+    loop = [*session_args, *mode_args, "--connect", router]
+    if opts.rt_priority is not None and not opts.in_process:
+        loop += ["--rt-priority", str(opts.rt_priority)]
+    expected = ["sim", "trajectory", "controller"] + (["recorder"] if opts.recording else [])
+    argv = {"clock": [*loop, "--mode", opts.mode, "--expect", ",".join(expected)]}
+    argv.update({name: loop for name in ("sim", "trajectory", "controller") if name not in opts.without})
+    if opts.recording:
         # The recorder is a client of the router even among local peers: it takes a few blocks a second
         # (no hop to save), and the router declares its subscribers to every peer before it passes its
         # liveliness token on to the clock, so the sim's first telemetry block (the handshake's report)
         # cannot miss it; a peer learns of a peer only once their direct link is up, a moment later.
-        rec = [*session_args, "--zenoh-mode", "client", "--connect", local]
-        if rrd:
-            Path(rrd).parent.mkdir(parents=True, exist_ok=True)
-            rec += ["--rrd", rrd]
-        if spawn:
-            rec += ["--spawn"]
-        if connect_viewer:
-            rec += ["--connect-viewer", connect_viewer]
-        if mcap:
-            Path(mcap).parent.mkdir(parents=True, exist_ok=True)
-            rec += ["--mcap", mcap]
-        if foxglove is not None:
-            rec += ["--foxglove", str(foxglove), "--foxglove-host", foxglove_host]
-        argv["recorder"] = rec
+        argv["recorder"] = [*session_args, "--zenoh-mode", "client", "--connect", router, *_recorder_args(opts)]
+    return argv
+
+
+def _recorder_args(opts: RunOptions) -> list[str]:
+    args: list[str] = []
+    for path, flag in ((opts.rrd, "--rrd"), (opts.mcap, "--mcap")):
+        if path:
+            Path(path).parent.mkdir(parents=True, exist_ok=True)
+            args += [flag, path]
+    if opts.spawn:
+        args += ["--spawn"]
+    if opts.connect_viewer:
+        args += ["--connect-viewer", opts.connect_viewer]
+    if opts.foxglove is not None:
+        args += ["--foxglove", str(opts.foxglove), "--foxglove-host", opts.foxglove_host]
+    return args
+
+
+def run_session(scenario: Scenario, opts: RunOptions | None = None) -> int:
+    """Run a session of ``scenario`` to its end; print (and write to ``opts.summary``) its JSON summary;
+    return the exit code (0: finished; 1: failed or aborted; 128 + N: stopped by signal N).
+
+    Multi-process (the default): every node a child process. ``opts.in_process``: every node in this
+    process on one private Zenoh session (:func:`cdpr.runtime.service.serve_composed`), the same
+    node classes and messages; no remote participant can join it.
+    """
+    opts = opts or RunOptions()
+    try:
+        keys = Keys(opts.session_id)
+    except ValueError as exc:
+        raise InputError(f"--session: {exc}") from None
+    if opts.in_process and (opts.without or opts.listen):
+        raise InputError("--in-process: every node runs in this process; --without/--listen need processes")
+    listen_eps = opts.listen_endpoints()
+    argv = node_argv(scenario, opts, local_endpoint(listen_eps[0]))
+    if opts.rt_priority is not None:
+        # the session's router (this process); each loop service sets its own (--rt-priority above),
+        # the recorder keeps the normal scheduling (it writes in bursts: no CPU to take from the loop)
+        set_realtime_priority(opts.rt_priority, inherited=opts.in_process)
+    stop = StopFlag().install()
+    conf = isolated_config() if opts.in_process else zenoh_config("router", listen=listen_eps)
     # The services are forked now, before the router's threads exist, and wait for it (Forked).
-    children = Children({} if in_process else argv, fork=not in_process and can_fork())
+    children = Children({} if opts.in_process else argv, fork=not opts.in_process and can_fork())
     try:
         router = open_session(conf, "cdpr run")
     except BaseException:
@@ -371,7 +395,7 @@ def run_session(
     with router as session:
         # In-process, the clock's statuses are queued as it publishes them: its last one is in once the
         # nodes are done (through the binding's thread it could come after the final look).
-        inbox = Inbox(direct=in_process)
+        inbox = Inbox(direct=opts.in_process)
         stop.on_set(inbox.wake)
         tape = Tape()
         subs = [
@@ -380,47 +404,72 @@ def run_session(
             inbox.subscribe(session, keys.status, "status"),
             inbox.subscribe(session, keys.stats_all, "stats"),
         ]
-        monitor = _Monitor(inbox, scenario.total_steps, quiet)
-        if in_process:
-            nodes = [build_node(name, scenario, keys, args) for name, args in argv.items()]
-            try:
-                code = serve_composed(nodes, session, stop, on_turn=lambda: monitor.poll(0.0))
-            finally:
+        monitor = _Monitor(inbox, scenario.total_steps, opts.quiet)
+        try:
+            if opts.in_process:
+                nodes = [build_node(name, scenario, keys, args) for name, args in argv.items()]
+                codes = {"in-process": serve_composed(nodes, session, stop, on_turn=lambda: monitor.poll(0.0))}
                 monitor.poll(0.0)
-                for s in subs:
-                    s.undeclare()
-            codes = {"in-process": code}
-            exit_ok = code == 0 and monitor.final is not None and monitor.final.state == "finished"
-        else:
-            # What the launcher made so far lives as long as the run: out of the garbage collector's sight
-            # (a full collection would otherwise scan it all, holding the GIL the tape's callbacks need).
-            gc.collect()
-            gc.freeze()
-            try:
-                if remote:
-                    log("cdpr", f"waiting for {', '.join(without)} to join session {session_id!r} "
-                        f"at {', '.join(listen_eps)}")
-                children.release()
-                while not stop:
-                    monitor.poll(0.2)
-                    if monitor.ended:
-                        exit_ok = monitor.final is not None and monitor.final.state == "finished"
-                        break
-                    if failed := children.failed():
-                        log("cdpr", "stopping: " + ", ".join(f"{n} exited with code {c}" for n, c in failed))
-                        break
-                    joined = monitor.final is not None and monitor.final.state != "waiting"
-                    if join_timeout is not None and not joined and time.monotonic() - started > join_timeout:
-                        log("cdpr", f"stopping: participants did not join within {join_timeout:g} s")
-                        break
-            finally:
-                # After a normal end the services leave by themselves; otherwise they are told to.
-                codes = children.stop(wait_first=FINISH_GRACE if exit_ok else 0.0)
-                monitor.raw.extend((ev.kind, ev.payload) for ev in inbox.drain(0.05))  # the services' last words
-                for s in subs:
-                    s.undeclare()
-    final, raw = monitor.final, monitor.raw
-    for kind, payload in itertools.chain(tape.items, raw):
+            else:
+                codes = _watch_children(children, monitor, stop, opts, listen_eps)
+        finally:
+            for s in subs:
+                s.undeclare()
+    result = session_summary(scenario, opts, monitor, tape, codes, interrupted=stop.signal is not None)
+    if stop.signal is not None:
+        log("cdpr", "interrupted; every service stopped")
+    _print_summary(result, opts.summary)
+    if stop.signal is not None:
+        return 128 + stop.signal
+    return 0 if result["exit_ok"] else 1
+
+
+def _print_summary(result: dict[str, Any], path: str | None) -> None:
+    """The summary as the last line of stdout, and indented in ``path``."""
+    if path:
+        Path(path).parent.mkdir(parents=True, exist_ok=True)
+        Path(path).write_text(json.dumps(result, indent=2) + "\n", encoding="utf-8")
+    print(json.dumps(result), flush=True)
+
+
+def _watch_children(children: Children, monitor: _Monitor, stop: StopFlag, opts: RunOptions,
+                    listen_eps: list[str]) -> dict[str, int]:
+    """Release the forked (or start the) services and watch the session until it ends, a service fails,
+    the participants do not join in time or a stop signal comes; then stop the services. Their exit codes."""
+    started = time.monotonic()
+    # What the launcher made so far lives as long as the run: out of the garbage collector's sight
+    # (a full collection would otherwise scan it all, holding the GIL the tape's callbacks need).
+    gc.collect()
+    gc.freeze()
+    try:
+        if opts.without:
+            log("cdpr", f"waiting for {', '.join(opts.without)} to join session {opts.session_id!r} "
+                f"at {', '.join(listen_eps)}")
+        children.release()
+        while not stop:
+            monitor.poll(0.2)
+            if monitor.ended:
+                break
+            if failed := children.failed():
+                log("cdpr", "stopping: " + ", ".join(f"{n} exited with code {c}" for n, c in failed))
+                break
+            joined = monitor.final is not None and monitor.final.state != "waiting"
+            if opts.join_timeout is not None and not joined and time.monotonic() - started > opts.join_timeout:
+                log("cdpr", f"stopping: participants did not join within {opts.join_timeout:g} s")
+                break
+    finally:
+        # After a normal end the services leave by themselves; otherwise they are told to.
+        codes = children.stop(wait_first=FINISH_GRACE if monitor.finished else 0.0)
+        monitor.raw.extend((ev.kind, ev.payload) for ev in monitor.inbox.drain(0.05))  # the services' last words
+    return codes
+
+
+def _replay(scenario: Scenario, items: Iterable[tuple[str, bytes]]) -> tuple[RunMetrics, dict[str, dict[str, int]]]:
+    """The run's metrics from the telemetry and setpoints it saw, and each service's fault counters."""
+    metrics = RunMetrics()
+    faults: dict[str, dict[str, int]] = {}
+    m = scenario.robot.m
+    for kind, payload in items:
         try:
             if kind == "telemetry":
                 block = Telemetry.decode(payload, m)
@@ -436,15 +485,24 @@ def run_session(
                 faults[stats_msg.service] = stats_msg.counters
         except ProtocolError:
             pass  # the services log and count bad messages; the summary ignores them
-    if stop.signal is not None:
-        log("cdpr", "interrupted; every service stopped")
-    stats = final.stats if final is not None else {}
+    return metrics, faults
+
+
+_CLOCK_FIGURES = ("lateness_p50_ms", "lateness_p99_ms", "lateness_p999_ms", "lateness_max_ms", "on_time_fraction")
+
+
+def session_summary(scenario: Scenario, opts: RunOptions, monitor: _Monitor, tape: Tape, codes: dict[str, int],
+                    interrupted: bool) -> dict[str, Any]:
+    """The run's JSON summary (docs: README "Quick start"): what the clock reported, the metrics of
+    what the monitor saw, the services' faults and exit codes."""
+    metrics, faults = _replay(scenario, itertools.chain(tape.items, monitor.raw))
+    stats = monitor.final.stats if monitor.final is not None else {}
     children_ok = all(c == 0 for c in codes.values())
     result: dict[str, Any] = {
         "scenario": scenario.name,
-        "session": session_id,
-        "mode": mode,
-        "in_process": in_process,
+        "session": opts.session_id,
+        "mode": opts.mode,
+        "in_process": opts.in_process,
         "steps": metrics.last_step if metrics.last_step >= 0 else 0,
         "total_steps": scenario.total_steps,
         "sim_time": max(metrics.last_step, 0) * scenario.dt,
@@ -456,19 +514,10 @@ def run_session(
         "faults": {k: v for k, v in {**stats.get("faults", {}), **faults}.items() if v},
         "resends": stats.get("resends"),
         "handshake_repeats": stats.get("handshake_repeats"),
-        "rrd": rrd,
-        "mcap": mcap,
+        "rrd": opts.rrd,
+        "mcap": opts.mcap,
         "exit_codes": codes,
-        "exit_ok": bool(exit_ok and children_ok and stop.signal is None),
+        "exit_ok": bool(monitor.finished and children_ok and not interrupted),
     }
-    for key in ("lateness_p50_ms", "lateness_p99_ms", "lateness_p999_ms", "lateness_max_ms", "on_time_fraction"):
-        if key in stats:
-            result[key] = stats[key]
-    line = json.dumps(result)
-    if summary:
-        Path(summary).parent.mkdir(parents=True, exist_ok=True)
-        Path(summary).write_text(json.dumps(result, indent=2) + "\n", encoding="utf-8")
-    print(line, flush=True)
-    if stop.signal is not None:
-        return 128 + stop.signal
-    return 0 if result["exit_ok"] else 1
+    result.update({key: stats[key] for key in _CLOCK_FIGURES if key in stats})
+    return result

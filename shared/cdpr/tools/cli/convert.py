@@ -20,7 +20,7 @@ import click
 import numpy as np
 
 from cdpr.errors import InputError
-from cdpr.tools.cli import _emit, cli
+from cdpr.tools.cli.group import cli, emit
 
 
 @cli.command()
@@ -30,7 +30,7 @@ from cdpr.tools.cli import _emit, cli
 def convert(file: str, fmt: str, output: str | None) -> None:
     """Convert the recording FILE.rrd (from cdpr run --rrd) to MCAP for Foxglove (and Rerun's MCAP reader)."""
     out = Path(output) if output is not None else Path(file).with_suffix(f".{fmt}")
-    _emit(rrd_to_mcap(file, out))
+    emit(rrd_to_mcap(file, out))
 
 
 @dataclass

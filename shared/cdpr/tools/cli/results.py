@@ -8,7 +8,7 @@ from typing import Any
 import click
 
 from cdpr.errors import InputError
-from cdpr.tools.cli import _emit, cli
+from cdpr.tools.cli.group import cli, emit
 
 # ------------------------------------------------------------------------------------------------
 # Recordings (Rerun): replay, show, report
@@ -41,7 +41,7 @@ def replay(file: str, web: bool, port: int, bind: str) -> None:
     for sig in (signal.SIGINT, signal.SIGTERM):
         signal.signal(sig, forward)
     if web:
-        _emit({"url": web_viewer_url(web_port, grpc_port), "file": file})
+        emit({"url": web_viewer_url(web_port, grpc_port), "file": file})
         sys.stdout.flush()
         click.echo("serving the web viewer; Ctrl-C to stop", err=True)
     code = proc.wait()
@@ -57,7 +57,7 @@ def show(robot: str, rrd: str | None, connect_viewer: str | None) -> None:
     from cdpr.config.robot import load_robot
     from cdpr.recording import show_robot
 
-    _emit(show_robot(load_robot(robot), rrd=rrd, viewer=connect_viewer))
+    emit(show_robot(load_robot(robot), rrd=rrd, viewer=connect_viewer))
 
 
 @cli.command()
@@ -68,7 +68,7 @@ def report(file: str, out_dir: str | None) -> None:
     """Plot the recording FILE.rrd in the paper's four-panel layout and write summary.json."""
     from cdpr.tools.report import write_report
 
-    _emit(write_report(file, out_dir))
+    emit(write_report(file, out_dir))
 
 
 @cli.command()

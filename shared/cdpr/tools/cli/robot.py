@@ -8,7 +8,7 @@ import click
 import numpy as np
 
 from cdpr.errors import InputError
-from cdpr.tools.cli import _emit, cli
+from cdpr.tools.cli.group import cli, emit
 
 # ------------------------------------------------------------------------------------------------
 # Robot tools
@@ -25,9 +25,9 @@ def robots(robot: str | None) -> None:
         for name in shipped_robots():
             r = load_robot(name)
             out.append({"name": name, "mode": r.mode, "cables": r.m, "mass": r.mass, "description": r.description})
-        _emit(out)
+        emit(out)
     else:
-        _emit(load_robot(robot).summary())
+        emit(load_robot(robot).summary())
 
 
 def _pose(values: tuple[float, ...]) -> tuple[np.ndarray, np.ndarray]:
@@ -55,7 +55,7 @@ def ik(ctx: click.Context, robot: str) -> None:
     r = load_robot(robot)
     position, R = _pose(_numbers("--pose", tuple(groups["--pose"])))
     k = inverse_kinematics(r, position, R)
-    _emit({"lengths": k.lengths.tolist(), "directions": k.directions.tolist(),
+    emit({"lengths": k.lengths.tolist(), "directions": k.directions.tolist(),
            "wrench_matrix": k.wrench_matrix.tolist()})
 
 
@@ -124,7 +124,7 @@ def tda(ctx: click.Context, robot: str, static: bool, payload: float, method: st
             raise InputError("--wrench: expected 6 finite numbers FX FY FZ MX MY MZ")
         w = wrench[rows]
     result = make_tda(method).solve(W, w, lo, hi)
-    _emit(
+    emit(
         {
             "tensions": result.tensions.tolist(),
             "feasible": result.feasible,
@@ -188,7 +188,7 @@ def workspace(robot: str, payload: float, mass: float | None, step: float,
     if rrd is not None or spawn:
         info = {"workspace": dict(out), "robot": r.summary()}
         out["problems"] = record_workspace(r, ws, R, rrd=rrd, spawn=spawn, info=info)
-    _emit(out)
+    emit(out)
 
 
 @cli.command("export-sdf")
@@ -218,5 +218,5 @@ def export_sdf(robot: str, output: str | None, tree: bool) -> None:
     model = ET.fromstring(text).find("world/model")
     assert model is not None
     joints = model.findall("joint")
-    _emit({"robot": r.name, "file": path, "links": len(model.findall("link")), "joints": len(joints),
+    emit({"robot": r.name, "file": path, "links": len(model.findall("link")), "joints": len(joints),
            "ball_joints": sum(j.get("type") == "ball" for j in joints)})

@@ -11,7 +11,7 @@ import click
 import numpy as np
 
 from cdpr.errors import InputError
-from cdpr.tools.cli import cli
+from cdpr.tools.cli.group import cli
 
 # ------------------------------------------------------------------------------------------------
 # Running sessions
@@ -84,10 +84,10 @@ def run(**kw: Any) -> None:
 
     Prints a JSON summary as the last line of stdout.
     """
-    from cdpr.tools.launch import run_session
+    from cdpr.tools.launch import RunOptions, run_session
 
-    in_process = kw["in_process"]
-    _leave(run_session(_load(kw.pop("scenario"), kw.pop("duration")), **kw), at_once=not in_process)
+    scenario = _load(kw.pop("scenario"), kw.pop("duration"))
+    _leave(run_session(scenario, RunOptions(**kw)), at_once=not kw["in_process"])
 
 
 def _leave(code: int, at_once: bool) -> NoReturn:
@@ -112,10 +112,11 @@ def _leave(code: int, at_once: bool) -> NoReturn:
 @click.option("--quiet", is_flag=True, help="no progress line")
 def up(**kw: Any) -> None:
     """Run the services of SCENARIO except --without ones, and wait for those to join over Zenoh."""
-    from cdpr.tools.launch import run_session
+    from cdpr.tools.launch import RunOptions, run_session
 
+    scenario = _load(kw.pop("scenario"), kw.pop("duration"))
     # the normal exit: the router may still be forwarding the end to remote participants
-    sys.exit(run_session(_load(kw.pop("scenario"), kw.pop("duration")), **kw))
+    sys.exit(run_session(scenario, RunOptions(**kw)))
 
 
 # ------------------------------------------------------------------------------------------------

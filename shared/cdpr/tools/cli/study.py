@@ -6,7 +6,7 @@ from pathlib import Path
 
 import click
 
-from cdpr.tools.cli import _emit, cli
+from cdpr.tools.cli.group import cli, emit
 
 _MODES = click.Choice(["auto", "in-process", "multi-process"])
 
@@ -29,7 +29,7 @@ def study(study_file: str, out: str | None, address: str | None, mode: str | Non
     from cdpr.tools.study.engine import need_ray, run_study
 
     need_ray()
-    _emit(run_study(study_file, Path(out) if out else None, address, mode, record, progress=not quiet))
+    emit(run_study(study_file, Path(out) if out else None, address, mode, record, progress=not quiet))
 
 
 @cli.command()
@@ -50,7 +50,7 @@ def tune(study_file: str, out: str | None, address: str | None, trials: int | No
     from cdpr.tools.study.tune import run_tune
 
     need_ray()
-    _emit(run_tune(study_file, Path(out) if out else None, address, trials, mode, progress=not quiet))
+    emit(run_tune(study_file, Path(out) if out else None, address, trials, mode, progress=not quiet))
 
 
 @cli.command("study-bench")
@@ -64,4 +64,4 @@ def study_bench(points: int, duration: float, mode: str, repeats: int) -> None:
     """Aggregate steps/s of a study against the same sessions run one at a time (JSON on stdout)."""
     from cdpr.tools.study.bench import study_throughput
 
-    _emit(study_throughput(points, duration, mode, progress=True, repeats=repeats))
+    emit(study_throughput(points, duration, mode, progress=True, repeats=repeats))
