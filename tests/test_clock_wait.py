@@ -50,11 +50,15 @@ def test_join_timeout_aborts_naming_the_missing_participant(session_id: str) -> 
                 p.kill()
                 p.wait()
     assert clk.returncode == 1, err
-    # From the start, every few seconds: at 2 s (the trajectory may still be starting), then at 7 s.
+    # From the start, every few seconds: at 2 s (the trajectory may still be starting), then at 7 s. Each line
+    # gives the seconds waited, rounded, when the clock's idle turn came: a busy machine can make it late by a
+    # second; and a 7 s line more than 0.5 s late is overtaken by the abort at 7.5 s.
     lines = waiting_lines(err)
-    assert [n for _, n in lines] == [2, 7], err
+    assert 1 <= len(lines) <= 2, err
+    assert lines[0][1] in (2, 3), err
     assert lines[0][0] in ("sim, trajectory", "sim"), err
-    assert lines[1][0] == "sim", err
+    if len(lines) == 2:
+        assert lines[1] in (("sim", 7), ("sim", 8)), err
     reason = f"sim did not join session '{session_id}' within 7.5 s (joined: trajectory)"
     assert err.strip().splitlines()[-1] == f"[clock] aborted: {reason}", err
     assert 7.5 < elapsed < 7.5 + 15, elapsed  # start-up, the timeout, at most LINGER s for the trajectory
@@ -82,7 +86,8 @@ def test_without_a_timeout_the_clock_keeps_waiting(session_id: str) -> None:
             clk.wait()
     err = "".join(seen) + rest
     assert still_running, err
-    assert waiting_lines(err) == [("sim", 2)], err  # the first line 2 s after the start; no abort by default
+    # the first line 2 s after the start (its turn may come a second late); no abort by default
+    assert waiting_lines(err) in ([("sim", 2)], [("sim", 3)]), err
     assert "aborted" not in err
     assert clk.returncode == 128 + signal.SIGTERM
 

@@ -225,8 +225,11 @@ def test_inbox_handler_runs_on_zenohs_thread_message_after_message() -> None:
     with zenoh.open(zenoh_config("peer", listen=[endpoint])) as a, \
             zenoh.open(zenoh_config("peer", connect=[endpoint])) as b:
         sub = Inbox(handler).subscribe(a, "test/fast/inbox", "x")
-        time.sleep(0.5)
         pub = b.declare_publisher("test/fast/inbox")
+        deadline = time.monotonic() + 20.0  # a peer drops puts for which it knows no subscriber yet
+        while not pub.matching_status.matching:
+            assert time.monotonic() < deadline, "the publisher never learned of the subscriber"
+            time.sleep(0.01)
         for i in range(50):
             pub.put(bytes([i]))
         assert done.wait(10.0)

@@ -41,12 +41,13 @@ def test_length_controlled_winches_track_the_15kg_trajectory(session_id: str) ->
     assert s["max_position_error"] <= 2e-3
     assert s["clamped_commands"] == 0
     assert s["infeasible_commands"] == 0
-    # no fault, but for the second answer to state 0 that a handshake repeat may bring (docs/protocol.md)
+    # no fault, but for the second answer to a state that the clock's repeat of a grant may bring (a handshake
+    # repeat of tick 0, or a resend after a stall on a starved machine; docs/protocol.md)
     faults = {k: v for k, v in s["faults"].items() if k != "sim"}
     sim_faults = s["faults"].get("sim", {})
     assert faults == {}
     assert set(sim_faults) <= {"stale_commands"}
-    assert sim_faults.get("stale_commands", 0) <= s["handshake_repeats"]
+    assert sim_faults.get("stale_commands", 0) <= s["handshake_repeats"] + s["resends"]
     assert 1.0 <= s["tension_min"] <= s["tension_max"] <= 6500.0
 
 

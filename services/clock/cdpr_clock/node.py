@@ -247,7 +247,7 @@ class ClockNode(Node):
             self.abort(f"{', '.join(self.missing)} did not join session {self.keys.session!r} within "
                        f"{self.join_timeout:g} s (joined: {', '.join(joined) or 'none'})", now)
         elif now >= self._next_wait_log:
-            self._next_wait_log = now + WAIT_LOG_EVERY
+            self._next_wait_log += WAIT_LOG_EVERY  # on a grid from the start (2, 7, 12 … s), however late this one
             log(self.name, f"waiting for {', '.join(self.missing)} to join session {self.keys.session!r} "
                 f"({waited:.0f} s)")
 
