@@ -47,9 +47,12 @@ test-docker: .venv
 	echo "make test-docker: base image $${base:-none (no Docker engine)}"; \
 	CDPR_BASE="$$base" $(PY) -m pytest -m docker tests/test_docker.py $(PYTEST_ARGS)
 
+# `make lint`: ruff, the import contracts and the type check ([tool.ruff], [tool.importlinter], [tool.mypy] in
+# pyproject.toml); fails on the first that finds anything (tests/test_lint.py runs it).
 lint: .venv
 	$(VENV)/bin/ruff check .
 	$(VENV)/bin/lint-imports --no-cache
+	$(VENV)/bin/mypy
 
 clean:
 	rm -rf $(VENV) runs build *.egg-info

@@ -216,7 +216,7 @@ class ClockNode(Node):
     def publish_status(self, now: float) -> None:
         assert self._status is not None
         final = self.finished_at is not None
-        stats = self.core.stats(self.finished_at if final else now, exact=final)
+        stats: dict[str, Any] = self.core.stats(now if self.finished_at is None else self.finished_at, exact=final)
         faults = {**self.faults, "clock": dict(self.counters)} if self.counters else dict(self.faults)
         stats["faults"] = {k: v for k, v in faults.items() if v}
         status = Status(

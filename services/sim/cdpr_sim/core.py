@@ -44,6 +44,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field
+from typing import Protocol
 
 import dartpy as dart
 import numpy as np
@@ -111,6 +112,40 @@ class StepReport:
     clamped_high: int  # how many were above tmax
     # (m,) cable damping force c·l̇_i applied along d_i on top of the tensions (> 0 pulls, < 0 pushes)
     damping: np.ndarray = field(default_factory=lambda: np.zeros(0))
+
+
+class SimModel(Protocol):
+    """What the sim service needs of a cable model: :class:`PlatformSim` (ideal cables) and the models of
+    :mod:`cdpr_sim.ups`, :mod:`cdpr_sim.elastic` and :mod:`cdpr_sim.sag`, chosen in :mod:`cdpr_sim.models`."""
+
+    robot: Robot
+    dt: float
+    step_count: int
+    fallbacks: int  # steps in which the cable law fell back outside its domain (0 where it cannot)
+    fallback_reason: str | None  # why, the last time
+
+    @property
+    def t(self) -> float: ...
+
+    def state(self) -> PlatformState:
+        """The current state (read-only arrays, safe to keep)."""
+        ...
+
+    def message(self, clamped: int) -> State:
+        """The current state as a ``sim/state`` message."""
+        ...
+
+    def step(self, command: np.ndarray) -> StepReport:
+        """Integrate one step under the command (tensions, or lengths for a winch model)."""
+        ...
+
+    def encoder_lengths(self) -> Array:
+        """(m,) what length encoders measure: the cable lengths, or what the winches paid out."""
+        ...
+
+    def load_cell_tensions(self) -> Array:
+        """(m,) what load cells at the frame read: the applied tensions, or the frame-end tensions."""
+        ...
 
 
 @dataclass(frozen=True)
@@ -190,6 +225,9 @@ class PlatformSim:
     ``t`` is ``step_count * dt`` (computed, not accumulated).
     """
 
+    fallbacks = 0  # the ideal cable's law has no domain to leave (SimModel)
+    fallback_reason: str | None = None
+
     def __init__(
         self,
         robot: Robot,
@@ -251,6 +289,14 @@ class PlatformSim:
         s = self._snapshot()
         return PlatformState.of(self.step_count, self.t, s.position, s.rotation, s.twist, s.lengths, s.rates,
                                 self._tensions)
+
+    def encoder_lengths(self) -> Array:
+        """(m,) the cable lengths (an ideal cable's encoder measures them exactly)."""
+        return self.state().cable_lengths
+
+    def load_cell_tensions(self) -> Array:
+        """(m,) the tensions applied over the last step."""
+        return self._tensions
 
     def message(self, clamped: int) -> State:
         """The current state as a ``sim/state`` message: ``state_message(self.state(), clamped)``, the same

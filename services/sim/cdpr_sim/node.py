@@ -159,7 +159,7 @@ class SimNode(Node):
         clamped = report.clamped_low or report.clamped_high
         self.clamped += bool(clamped)
         self.publish_state()
-        if getattr(self.sim, "fallbacks", 0) > self.counters.get("cable_fallbacks", 0):  # the cable law fell back
+        if self.sim.fallbacks > self.counters.get("cable_fallbacks", 0):  # the cable law fell back
             self.count("cable_fallbacks")
             if self.counters["cable_fallbacks"] == 1:
                 log(self.name, f"step {cmd.step}: the cable model fell back: {self.sim.fallback_reason} "

@@ -23,7 +23,6 @@ configuration of the other sensors.
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Any
 
 import numpy as np
 from numpy.typing import ArrayLike
@@ -32,6 +31,7 @@ from cdpr.config.scenario import SensorsSpec
 from cdpr.mechanics.robot import GRAVITY
 from cdpr.mechanics.rotation import Array
 from cdpr.protocol import Sensors
+from cdpr_sim.core import SimModel
 
 
 @dataclass(frozen=True)
@@ -126,7 +126,7 @@ class SensorSuite:
         self._previous: tuple[int, Array] | None = None  # (step, twist) of the last new step read
         self._last: Sensors | None = None
 
-    def read(self, sim: Any) -> Sensors:
+    def read(self, sim: SimModel) -> Sensors:
         state = sim.state()
         if self._last is not None and self._last.step == state.step:
             return self._last
@@ -136,8 +136,7 @@ class SensorSuite:
             acceleration = (twist[:3] - prev[1][:3]) / self.dt
         else:
             acceleration = np.zeros(3)
-        encoders = sim.encoder_lengths() if hasattr(sim, "encoder_lengths") else state.cable_lengths
-        cells = sim.load_cell_tensions() if hasattr(sim, "load_cell_tensions") else state.tensions
+        encoders, cells = sim.encoder_lengths(), sim.load_cell_tensions()
         truth = SensorTruth(state.step, state.t, state.rotation, twist, acceleration, encoders, cells)
         self._previous = (state.step, twist)
         self._last = measure(truth, self.config)

@@ -125,6 +125,9 @@ class UpsSim:
     twist to rest, ``t = step_count·dt``). ``link_mass`` (kg) is the mass of each virtual link.
     """
 
+    fallbacks = 0  # the U-P-S legs have no domain to leave (SimModel)
+    fallback_reason: str | None = None
+
     def __init__(
         self,
         robot: Robot,
@@ -238,6 +241,14 @@ class UpsSim:
     def message(self, clamped: int) -> State:
         """The current state as a ``sim/state`` message."""
         return state_message(self.state(), clamped)
+
+    def encoder_lengths(self) -> Array:
+        """(m,) the legs' lengths."""
+        return self.state().cable_lengths
+
+    def load_cell_tensions(self) -> Array:
+        """(m,) the tensions applied over the last step."""
+        return self._tensions
 
     def closure_errors(self) -> Array:
         """(m,) distance, m, between each leg's end and its platform point (the spherical joints' gaps)."""

@@ -122,7 +122,7 @@ class RobotSpec(_Strict):
     platform: PlatformSpec
     limits: CableLimitsSpec
     cables: list[CableSpec] = Field(min_length=1)
-    damping: DampingSpec = Field(default_factory=DampingSpec)
+    damping: DampingSpec = Field(default_factory=lambda: DampingSpec())
     home: HomeSpec
     frame_box: FrameBoxSpec
 

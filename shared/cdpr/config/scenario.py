@@ -143,9 +143,9 @@ class SensorsSpec(_Strict):
     """Simulated sensors, published on sim/sensors (cdpr_sim.sensors)."""
 
     seed: int = Field(0, ge=0, description="seed of the noise (a reading is a function of seed and step)")
-    encoders: EncoderSpec = Field(default_factory=EncoderSpec)
-    load_cells: LoadCellSpec = Field(default_factory=LoadCellSpec)
-    imu: ImuSpec = Field(default_factory=ImuSpec)
+    encoders: EncoderSpec = Field(default_factory=lambda: EncoderSpec())
+    load_cells: LoadCellSpec = Field(default_factory=lambda: LoadCellSpec())
+    imu: ImuSpec = Field(default_factory=lambda: ImuSpec())
 
 
 class SimSpec(_Strict):
@@ -155,9 +155,9 @@ class SimSpec(_Strict):
         "universal-prismatic-spherical legs closed with ball-joint constraints; elastic: straight elastic "
         "cables on winches; sag: heavy elastic cables (elastic catenary) on winches",
     )
-    elastic: ElasticSpec = Field(default_factory=ElasticSpec)
-    sag: SagSpec = Field(default_factory=SagSpec)
-    winch: WinchSpec = Field(default_factory=WinchSpec)
+    elastic: ElasticSpec = Field(default_factory=lambda: ElasticSpec())
+    sag: SagSpec = Field(default_factory=lambda: SagSpec())
+    winch: WinchSpec = Field(default_factory=lambda: WinchSpec())
     substeps: int | None = Field(None, ge=1, description="sub-steps per dt in lengths mode (default: chosen "
                                  "for stability and accuracy from the cables' stiffness)")
     sensors: SensorsSpec | None = Field(None, description="publish simulated sensor readings on sim/sensors")
@@ -181,14 +181,14 @@ class ScenarioSpec(_Strict):
     name: str
     description: str = ""
     robot: str
-    platform: PlatformOverride = Field(default_factory=PlatformOverride)
-    limits: LimitsOverride = Field(default_factory=LimitsOverride)
+    platform: PlatformOverride = Field(default_factory=lambda: PlatformOverride())
+    limits: LimitsOverride = Field(default_factory=lambda: LimitsOverride())
     dt: PositiveFloat = 0.001
     duration: PositiveFloat | None = Field(None, description="default: the trajectory's duration plus 1 s")
     initial: InitialSpec | None = Field(None, description="default: the trajectory's first pose, at rest")
     trajectory: TrajectorySpec
-    controller: ControllerSpec = Field(default_factory=ControllerSpec)
-    sim: SimSpec = Field(default_factory=SimSpec)
+    controller: ControllerSpec = Field(default_factory=lambda: ControllerSpec())
+    sim: SimSpec = Field(default_factory=lambda: SimSpec())
 
     @model_validator(mode="after")
     def _dt_sane(self) -> ScenarioSpec:

@@ -61,7 +61,7 @@ from typing import NamedTuple
 import numpy as np
 from numpy.typing import ArrayLike
 
-from cdpr.mechanics.rotation import Array
+from cdpr.mechanics.rotation import Array, BoolArray
 
 LENGTH_TOL = 1e-10  # m: iterations stop when the end-point residual is below this and the next correction
 #                   negligible, or at the rounding floor of the end-point formulas, ≈ 64 ε (span + |rise|)
@@ -277,7 +277,7 @@ def _guess(span: Array, rise: Array, L0: Array, w: Array, EA: Array) -> tuple[Ar
 
 
 def _minimise(span: Array, rise: Array, L0: Array, w: Array, EA: Array, H: Array, V0: Array,
-              tol: float) -> tuple[Array, Array, Array, int]:
+              tol: float) -> tuple[Array, Array, BoolArray, int]:
     """Damped Newton on the energy ``Φ − H span − V0 rise`` (spans > 0): (H, V0, converged, iterations).
 
     A cable has converged when its end-point residual is at the rounding floor, or below ``tol`` with a
@@ -415,7 +415,7 @@ def _rod_for_tension(rise: Array, T: Array, w: Array, EA: Array) -> tuple[Array,
 
 
 def _tension_newton(span: Array, rise: Array, T: Array, w: Array, EA: Array, phi: Array, L0: Array,
-                    tol: float, iterations: int) -> tuple[Array, Array, Array, int]:
+                    tol: float, iterations: int) -> tuple[Array, Array, BoolArray, int]:
     """Newton on Irvine's equations in (φ, L0), platform-end tension T: (φ, L0, converged, iterations).
 
     Converged as in :func:`_minimise`, with the correction measured in radians for φ and, for L0, as the
@@ -594,9 +594,9 @@ def solve_catenary_tension(
         V, L = _rod_for_tension(z[vertical], T[vertical], w[vertical], EA[vertical])
         phi[vertical], L0[vertical] = np.where(V > 0.0, 0.5 * np.pi, -0.5 * np.pi), L
         ok[vertical] = np.isfinite(L)
-        for i in np.flatnonzero(vertical & ~ok):  # hanging below the platform: it must hold the whole cable
+        for i in np.flatnonzero(vertical & ~ok).tolist():  # hanging below the platform: it must hold the whole cable
             u = -float(z[i])
-            least[int(i)] = float(EA[i]) * (math.sqrt(1.0 + 2.0 * float(w[i]) * u / float(EA[i])) - 1.0)
+            least[i] = float(EA[i]) * (math.sqrt(1.0 + 2.0 * float(w[i]) * u / float(EA[i])) - 1.0)
     iterations = 0
     todo = np.flatnonzero(~vertical)
     if todo.size:

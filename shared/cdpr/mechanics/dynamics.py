@@ -8,7 +8,7 @@ C ẋ = [0; ω × (R I Rᵀ) ω] and w_g = [m g; 0]. In point-mass mode only the
 
 from __future__ import annotations
 
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, cast
 
 import numpy as np
 from numpy.typing import ArrayLike
@@ -63,4 +63,4 @@ def forward_dynamics(robot: Robot, R: ArrayLike, twist: ArrayLike, cable_wrench:
     w = np.asarray(cable_wrench, dtype=float) + gravity_wrench(robot) - coriolis_wrench(robot, R, twist)
     if external is not None:
         w = w + np.asarray(external, dtype=float)
-    return np.linalg.solve(mass_matrix(robot, R), w)
+    return cast(Array, np.linalg.solve(mass_matrix(robot, R), w))

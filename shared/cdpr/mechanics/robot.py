@@ -16,9 +16,10 @@ from __future__ import annotations
 
 import dataclasses
 from dataclasses import dataclass
-from typing import Literal
+from typing import Any, Literal
 
 import numpy as np
+from numpy.typing import ArrayLike
 
 from cdpr.errors import InputError
 from cdpr.mechanics.rotation import Array
@@ -32,7 +33,7 @@ DOF = {"spatial": 6, "point_mass": 3, "planar": 3}
 CONTROLLED_ROWS = {"spatial": (0, 1, 2, 3, 4, 5), "point_mass": (0, 1, 2), "planar": (0, 2, 4)}
 
 
-def frozen_array(a: Array) -> Array:
+def frozen_array(a: ArrayLike) -> Array:
     a = np.array(a, dtype=float)
     a.flags.writeable = False
     return a
@@ -94,8 +95,8 @@ class Robot:
     def controlled_rows(self) -> tuple[int, ...]:
         return CONTROLLED_ROWS[self.mode]
 
-    def replace(self, **changes: object) -> Robot:
-        frozen = {k: frozen_array(v) if isinstance(v, np.ndarray) else v for k, v in changes.items()}
+    def replace(self, **changes: Any) -> Robot:
+        frozen: dict[str, Any] = {k: frozen_array(v) if isinstance(v, np.ndarray) else v for k, v in changes.items()}
         return dataclasses.replace(self, **frozen)
 
     def with_mass(self, mass: float) -> Robot:

@@ -11,6 +11,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 Array = NDArray[np.float64]
+BoolArray = NDArray[np.bool_]  # masks
 
 
 def skew(v: ArrayLike) -> Array:

@@ -99,7 +99,7 @@ class Keys:
             return self.stats_all if publisher is None else self.stats(publisher)
         if name == "alive":
             return self.alive_all if publisher is None else self.alive(publisher)
-        return getattr(self, name)  # type: ignore[no-any-return]
+        return str(getattr(self, name))
 
     def table(self) -> dict[str, str]:
         """Name → key expression, for documentation and tests."""

@@ -410,7 +410,7 @@ def send_text(
     steps: Sequence[int],
     times: Sequence[float],
     texts: Sequence[str],
-    level: str = "INFO",
+    level: str | rr.TextLogLevel = "INFO",
 ) -> None:
     if not texts:
         return
@@ -445,7 +445,8 @@ def send_cables(
     colors = tension_colors(np.asarray(tensions, dtype=float).reshape(n, m), robot.tmin, robot.tmax).reshape(
         n * m, 4
     )
-    cols = rr.LineStrips3D.columns(strips=strips, colors=colors).partition(np.full(n, m))
+    # (rerun takes the (n·m, 2, 3) array as n·m strips; its type hints do not list 3-d arrays)
+    cols = rr.LineStrips3D.columns(strips=strips, colors=colors).partition(np.full(n, m))  # type: ignore[arg-type]
     rec.send_columns(CABLES, indexes=time_columns(steps, times), columns=cols)
 
 
@@ -473,7 +474,7 @@ def show_robot(robot: Robot, rrd: str | Path | None = None, viewer: str | None =
     rec.send_recording_name(f"{robot.name} at home")
     log_scene(rec, robot, ghost=False)
     home = np.concatenate([robot.home_position, matrix_to_quat(robot.home_rotation)])
-    rec.log(PLATFORM, rr.Transform3D(translation=home[:3], quaternion=home[3:]), static=True)
+    rec.log(PLATFORM, rr.Transform3D(translation=home[:3], quaternion=rr.Quaternion(xyzw=home[3:])), static=True)
     strips = cable_strips(robot, home[None, :3], home[None, 3:])[0]
     rec.log(
         CABLES,

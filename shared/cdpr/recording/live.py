@@ -13,6 +13,8 @@ import threading
 import time
 from typing import Any
 
+from foxglove.websocket import ServerListener
+
 from cdpr.errors import InputError
 
 DEFAULT_PORT = 8765  # Foxglove's usual WebSocket port
@@ -22,7 +24,7 @@ LINGER = 1.0  # seconds the server stays up after the last batch while a client 
 #              server drops what is still queued
 
 
-class _Subscriptions:
+class _Subscriptions(ServerListener):
     """The server's listener: which (client, channel) pairs are subscribed right now."""
 
     def __init__(self) -> None:

@@ -41,7 +41,7 @@ def record_workspace(
     rotation = np.eye(3) if R is None else np.asarray(R, dtype=float)
     rec.log(
         rec_mod.PLATFORM,
-        rr.Transform3D(translation=robot.home_position, quaternion=matrix_to_quat(rotation)),
+        rr.Transform3D(translation=robot.home_position, quaternion=rr.Quaternion(xyzw=matrix_to_quat(rotation))),
         static=True,
     )
     step = float(ws.spacing[ws.spacing > 0].min()) if np.any(ws.spacing > 0) else 0.1

@@ -37,6 +37,7 @@ def node_names() -> tuple[str, ...]:
 def node_class(name: str) -> type[Node]:
     """The registered node class called ``name`` (imported on first use)."""
     for ep in entry_points(group=GROUP, name=name):
-        return ep.load()  # type: ignore[no-any-return]
+        node: type[Node] = ep.load()
+        return node
     known = ", ".join(node_names()) or "none: is the cdpr package installed?"
     raise InputError(f"no node called {name!r} is registered (known: {known})")

@@ -77,7 +77,7 @@ class Node:
     @classmethod
     def from_args(cls, scenario: Scenario, keys: Keys, args: argparse.Namespace) -> Node:
         """The node for ``scenario`` from the parsed command line (see :mod:`cdpr.runtime.main`)."""
-        return cls(scenario, keys)  # type: ignore[call-arg]
+        return cls(scenario, keys)  # type: ignore[call-arg, arg-type]  # a node of the (scenario, keys) kind
 
     @classmethod
     def make_core(cls, scenario: Scenario) -> Any:
@@ -278,7 +278,8 @@ def declare_topics(node: Node, session: zenoh.Session, inbox: Inbox) -> list[Any
     """Declare what ``node`` lists (checked against the wiring table), then its own extras, then
     ``status`` (every node's); return what must be kept alive."""
     check_node(type(node).name, node.subscribes, node.publishes)  # the role (an instance may rename itself)
-    keys, keep = node.keys, []
+    keys = node.keys
+    keep: list[Any] = []  # publishers, subscribers, queryables: kept alive as long as the node serves
     for topic in node.publishes:
         if TOPICS[topic].kind == "queryable":
             def on_query(query: zenoh.Query, topic: str = topic) -> None:

@@ -148,7 +148,7 @@ class Forked:
                 os.kill(self.pid, sig)
 
 
-def _forked_service(name: str, args: list[str], gate: tuple[int, int], mask: set[signal.Signals]) -> NoReturn:
+def _forked_service(name: str, args: list[str], gate: tuple[int, int], mask: Iterable[int]) -> NoReturn:
     """The forked child: serve ``name`` as ``python -m cdpr.runtime`` would, then leave."""
     code = 1
     try:
@@ -211,7 +211,7 @@ class Children:
                 self.procs[name] = subprocess.Popen(service_command(name, args), stdout=sys.stderr.fileno(), env=env)
 
     def failed(self) -> list[tuple[str, int]]:
-        return [(n, p.returncode) for n, p in self.procs.items() if p.poll() is not None and p.returncode != 0]
+        return [(n, code) for n, p in self.procs.items() if (code := p.poll()) is not None and code != 0]
 
     def stop(self, wait_first: float) -> dict[str, int]:
         """Give the children ``wait_first`` seconds to end by themselves, then SIGTERM, then SIGKILL."""
@@ -230,9 +230,7 @@ class Children:
                 time.sleep(0.005)
             if all(p.poll() is not None for p in self.procs.values()):
                 break
-        for p in self.procs.values():
-            p.wait()
-        return {n: p.returncode for n, p in self.procs.items()}
+        return {n: p.wait() for n, p in self.procs.items()}
 
 
 class Tape:

@@ -15,7 +15,7 @@ from typing import Any, ClassVar, Literal, cast, get_args
 import numpy as np
 from numpy.typing import ArrayLike
 
-from cdpr.mechanics.rotation import Array
+from cdpr.mechanics.rotation import Array, BoolArray
 
 Status = Literal[
     "optimal", "suboptimal", "rate_relaxed", "out_of_bounds", "infeasible", "solver_failed", "invalid_input"
@@ -94,7 +94,7 @@ class _Problem:
     __slots__ = ("W", "any_pinned", "bound_scale", "lb", "pinned", "tol", "ub", "w")
 
     def __init__(self, W: Array, w: Array, lb: Array, ub: Array, tol: float,
-                 bound_scale: float | None = None, pinned: Array | None = None) -> None:
+                 bound_scale: float | None = None, pinned: BoolArray | None = None) -> None:
         self.W, self.w, self.lb, self.ub = W, w, lb, ub
         self.tol = tol  # residual below which W f = w counts as met
         self.bound_scale = _bound_scale(lb, ub) if bound_scale is None else bound_scale
@@ -177,7 +177,7 @@ def _min_norm(A: Array, b: Array) -> Array:
             y, info = _lapack().dpotrs(L, A.T @ b, lower=1)
             if info == 0:
                 return y
-    return np.linalg.lstsq(A, b, rcond=None)[0]
+    return cast(Array, np.linalg.lstsq(A, b, rcond=None)[0])
 
 
 def _refine(alpha: float, q: Array | None, prob: _Problem, w: Array, f0: Array) -> Array | None:
@@ -315,7 +315,7 @@ class TensionDistributor(ABC):
 
     def _scalar_bounds(
         self, W: ArrayLike, w: ArrayLike, tmin: ArrayLike, tmax: ArrayLike
-    ) -> tuple[Array, Array, float, Array] | None:
+    ) -> tuple[Array, Array, float, BoolArray] | None:
         """(lb, ub, bound scale, pinned) for float64 arrays W (k×m), w (k,) and float bounds, built once
         per (m, tmin, tmax) and kept; None for any other input (then :func:`_as_arrays` checks it all)."""
         if type(W) is not np.ndarray or type(w) is not np.ndarray:

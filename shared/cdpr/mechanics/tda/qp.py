@@ -12,7 +12,7 @@ import math
 import warnings
 from abc import abstractmethod
 from types import MappingProxyType
-from typing import Any, ClassVar, get_args
+from typing import Any, ClassVar, cast, get_args
 
 import numpy as np
 
@@ -100,7 +100,7 @@ class _QpDistributor(TensionDistributor):
             warnings.simplefilter("ignore")  # failures are reported through the status instead
             try:
                 solution = qpsolvers.solve_problem(problem, solver=self.solver, initvals=initvals, **settings)
-            except (qpsolvers.QPError, *self.solver_errors):
+            except (cast(type[Exception], qpsolvers.QPError), *self.solver_errors):
                 return None
         x = solution.x
         if x is None or np.shape(x) != (m,) or not np.all(np.isfinite(x)):

@@ -248,7 +248,7 @@ def bench_loop_variants(scenario: Scenario, duration: float | None, rounds: int,
                 mono += [steps / monolithic_steps(scenario, steps) for _ in range(mono_repeats)]
                 argv = [scenario.source, *extra, *(a.format(tmp=tmp) for a in args)]
                 runs[name].append(_run_sessions([argv], name.replace("_", ""), 900.0)[0])
-    monolithic = {"steps": steps, "repeats": len(mono), "steps_per_s": statistics.median(mono),
+    monolithic: dict[str, Any] = {"steps": steps, "repeats": len(mono), "steps_per_s": statistics.median(mono),
                   "runs_steps_per_s": mono, "us_per_step": monolithic_timers(scenario, steps)}
     return monolithic, {name: _loop_result(r, monolithic["steps_per_s"]) for name, r in runs.items()}
 

@@ -156,7 +156,9 @@ def bench_tda(sizes: Sequence[int], calls: int) -> dict[str, Any]:
 
 def _time_solves(tda: Any, path: Sequence[tuple[np.ndarray, np.ndarray]], lo: float, hi: float
                  ) -> tuple[dict[str, Any], list[np.ndarray]]:
-    times, answers, statuses = [], [], {}
+    times: list[float] = []
+    answers: list[np.ndarray] = []
+    statuses: dict[str, int] = {}
     clock = time.perf_counter
     for W, w in path:
         a = clock()

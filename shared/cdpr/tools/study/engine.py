@@ -43,11 +43,10 @@ def connect_ray(address: str | None) -> dict[str, Any]:
 
     if not ray.is_initialized():
         address = address or os.environ.get("RAY_ADDRESS") or None
-        quiet = {"log_to_driver": False, "logging_level": logging.WARNING}
         if address:
-            ray.init(address=address, **quiet)
+            ray.init(address=address, log_to_driver=False, logging_level=logging.WARNING)
         else:
-            ray.init(include_dashboard=False, **quiet)
+            ray.init(include_dashboard=False, log_to_driver=False, logging_level=logging.WARNING)
     return {"nodes": len([n for n in ray.nodes() if n.get("Alive")]), "cpus": ray.cluster_resources().get("CPU", 0)}
 
 

@@ -122,8 +122,7 @@ def _versus(spec: StudySpec, rows: list[dict[str, Any]], metrics: list[str], col
             ax.bar(range(len(labels)), [y * factor for _, y in text if y is not None], color="#4c72b0")
             ax.set_xticks(range(len(labels)), labels, rotation=30, ha="right")
         elif scatter:
-            xs, ys = zip(*pairs, strict=True)
-            ax.scatter(xs, ys, s=8, alpha=0.6, color="#4c72b0")
+            ax.scatter([x for x, _ in pairs], [y for _, y in pairs], s=8, alpha=0.6, color="#4c72b0")
         else:
             by_x: dict[float, list[float]] = defaultdict(list)
             for x, y in pairs:

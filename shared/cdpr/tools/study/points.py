@@ -257,7 +257,7 @@ def _duration(doc: dict[str, Any], where: str) -> float:
 
 def study_points(spec: StudySpec, base: Base, where: str) -> list[Point]:
     """Every point of a study: the product of the grids (in parameter order), each with ``samples`` draws."""
-    grids = [(j, p.values) for j, p in enumerate(spec.parameters) if p.is_grid]
+    grids = [(j, p.values) for j, p in enumerate(spec.parameters) if p.values is not None]  # the grid laws
     samples: list[int | None] = list(range(spec.samples)) if spec.samples else [None]
     points = []
     combos = itertools.product(*[vals for _, vals in grids]) if grids else [()]

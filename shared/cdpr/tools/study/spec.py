@@ -126,6 +126,11 @@ class ParameterSpec(_Strict):
         return self.values is not None
 
     @property
+    def discrete(self) -> list[Any] | None:
+        """The values a grid or a choice law takes; None for a continuous law."""
+        return self.values if self.values is not None else self.choice
+
+    @property
     def on_robot(self) -> bool:
         return self.path.startswith("robot.")
 

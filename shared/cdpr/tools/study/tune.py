@@ -47,8 +47,8 @@ def search_space(spec: StudySpec) -> dict[str, Any]:
 
     space: dict[str, Any] = {}
     for p in spec.parameters:
-        if p.values is not None or p.choice is not None:
-            space[p.column] = tune.choice(p.values if p.values is not None else p.choice)
+        if p.discrete is not None:
+            space[p.column] = tune.choice(p.discrete)
         elif p.uniform is not None:
             lo, hi = p.uniform
             space[p.column] = tune.qrandint(int(lo), int(hi)) if p.integer else tune.uniform(lo, hi)
@@ -88,8 +88,8 @@ def _in_range(p: ParameterSpec, value: Any) -> bool:
     if p.uniform is not None or p.loguniform is not None:
         lo, hi = p.uniform or p.loguniform  # type: ignore[misc]
         return isinstance(value, int | float) and lo <= value <= hi
-    if p.values is not None or p.choice is not None:
-        return value in (p.values if p.values is not None else p.choice)
+    if p.discrete is not None:
+        return value in p.discrete
     return isinstance(value, int | float)
 
 
@@ -225,7 +225,8 @@ def run_tune(study_file: str | Path, out: Path | None = None, address: str | Non
     metric_names = sorted({*spec.metrics, t.metric, *(c.metric for c in t.constraints)})
     baseline = metrics_of(baseline_result.get("summary") or {}, metric_names, base_limits)
     rows = []
-    for i, result in enumerate(grid):
+    for i in range(len(grid)):
+        result = grid[i]
         last = result.metrics or {}
         config = result.config or {}
         full = last.get("fidelity") == 1.0
