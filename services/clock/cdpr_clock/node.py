@@ -97,9 +97,7 @@ class ClockNode(Node):
     def missing(self) -> tuple[str, ...]:
         return tuple(s for s in self.expected if s not in self.present)
 
-    subscribes = ("telemetry", "stats")
     scenario_checks = ("workspace",)  # the session's authority: a trajectory out of the workspace is refused
-    publishes = ("tick", "status", "info")
 
     def declare(self, session: zenoh.Session, inbox: Inbox) -> list[Any]:
         self._tick, self._status = self.publishers["tick"], self.publishers["status"]

@@ -44,9 +44,7 @@ class ControllerNode(Node):
         self.infeasible = 0
         self._pub: zenoh.Publisher | None = None
 
-    subscribes = ("state", "setpoints")
     scenario_checks = ("tda",)
-    publishes = ("command",)
 
     def declare(self, session: zenoh.Session, inbox: Inbox) -> list[Any]:
         self._pub = self.publishers["command"]

@@ -149,9 +149,6 @@ class RecorderNode(Node):
         recording.log_series_styles(rec, self.m)
         recording.log_planned_path(rec, self.planned_path)
 
-    # -- wiring -----------------------------------------------------------------------------------
-    subscribes = ("telemetry", "setpoints")
-
     def handle(self, event: Event) -> None:
         core = self.core
         try:

@@ -62,10 +62,6 @@ class SimNode(Node):
         self.block_sensors: list[Sensors] = []
         self._state_msg: State | None = None
 
-    # -- wiring -----------------------------------------------------------------------------------
-    subscribes = ("tick", "command")
-    publishes = ("state", "telemetry", "sensors")
-
     def declare(self, session: zenoh.Session, inbox: Inbox) -> list[Any]:
         self._pub, self._telemetry_pub = self.publishers["state"], self.publishers["telemetry"]
         self._sensors_pub = self.publishers["sensors"]

@@ -40,9 +40,6 @@ class TrajectoryNode(Node):
         self.published = -1  # the last setpoint published
         self._pub: zenoh.Publisher | None = None
 
-    subscribes = ("tick",)
-    publishes = ("setpoints",)
-
     def declare(self, session: zenoh.Session, inbox: Inbox) -> list[Any]:
         self._pub = self.publishers["setpoints"]
         return []

@@ -14,15 +14,17 @@ import math
 import re
 from collections.abc import Sequence
 from dataclasses import dataclass, field
-from typing import Any, ClassVar
+from typing import Any
 
 import msgpack
+
+from cdpr.protocol.wiring import TOPICS, WIRING
 
 PROTOCOL_VERSION = 2  # 2: ticks grant windows; setpoints and telemetry travel in blocks
 SESSION_RE = re.compile(r"^[A-Za-z0-9_-]{1,64}$")
 
-# Service names that can hold a liveliness token `cdpr/{session}/alive/{name}`.
-SERVICES = ("clock", "sim", "trajectory", "controller", "recorder")
+# Service names that can hold a liveliness token `cdpr/{session}/alive/{name}`: the nodes of the wiring table.
+SERVICES = tuple(WIRING)
 
 
 class ProtocolError(ValueError):
@@ -46,37 +48,13 @@ class Keys:
         check_session(self.session)
         object.__setattr__(self, "prefix", f"cdpr/{self.session}")
 
-    @property
-    def tick(self) -> str:
-        return f"{self.prefix}/clock/tick"
-
-    @property
-    def status(self) -> str:
-        return f"{self.prefix}/clock/status"
-
-    @property
-    def state(self) -> str:
-        return f"{self.prefix}/sim/state"
-
-    @property
-    def command(self) -> str:
-        return f"{self.prefix}/controller/command"
-
-    @property
-    def sensors(self) -> str:
-        return f"{self.prefix}/sim/sensors"
-
-    @property
-    def setpoints(self) -> str:
-        return f"{self.prefix}/trajectory/setpoints"
-
-    @property
-    def telemetry(self) -> str:
-        return f"{self.prefix}/sim/telemetry"
-
-    @property
-    def info(self) -> str:
-        return f"{self.prefix}/session/info"
+    def __getattr__(self, name: str) -> str:
+        """``keys.tick``, ``keys.state``, …: the key of each topic of :data:`cdpr.protocol.wiring.TOPICS` that
+        has one key per session (``stats`` and ``alive`` have one per node: :meth:`stats`, :meth:`alive`)."""
+        topic = TOPICS.get(name)
+        if topic is None or "{" in topic.key or "prefix" not in self.__dict__:
+            raise AttributeError(f"{type(self).__name__!r} object has no attribute {name!r}")
+        return f"{self.prefix}/{topic.key}"
 
     def stats(self, service: str) -> str:
         return f"{self.prefix}/stats/{service}"
@@ -102,19 +80,8 @@ class Keys:
         return str(getattr(self, name))
 
     def table(self) -> dict[str, str]:
-        """Name → key expression, for documentation and tests."""
-        return {
-            "tick": self.tick,
-            "status": self.status,
-            "state": self.state,
-            "command": self.command,
-            "sensors": self.sensors,
-            "setpoints": self.setpoints,
-            "telemetry": self.telemetry,
-            "info": self.info,
-            "alive": self.alive("{service}"),
-            "stats": self.stats("{service}"),
-        }
+        """Topic name → key expression (``{service}`` where a node's name goes), for documentation and tests."""
+        return {name: f"{self.prefix}/{t.key.replace('{node}', '{service}')}" for name, t in TOPICS.items()}
 
 
 # --------------------------------------------------------------------------------------------------
@@ -234,7 +201,6 @@ class Tick:
     more until it hears of progress, so the sim sends its telemetry once it has computed ``until``.
     """
 
-    KEY: ClassVar[str] = "tick"
     step: int
     t: float
     until: int = -1  # the last step granted (-1: ``step``)
@@ -266,7 +232,6 @@ class Tick:
 class State:
     """``sim/state``: the platform at step ``step`` and what acted on it during the previous step."""
 
-    KEY: ClassVar[str] = "state"
     step: int
     t: float
     pose: tuple[float, ...]  # x, y, z, qx, qy, qz, qw (centre of mass, world frame)
@@ -307,7 +272,6 @@ class State:
 class Setpoint:
     """``trajectory/setpoint``: the desired pose, twist and acceleration at step ``step``."""
 
-    KEY: ClassVar[str] = "setpoint"
     step: int
     t: float
     pose: tuple[float, ...]
@@ -349,7 +313,6 @@ class Command:
     controller's tension distribution outcome.
     """
 
-    KEY: ClassVar[str] = "command"
     step: int
     t: float
     tensions: tuple[float, ...]
@@ -417,7 +380,6 @@ class Sensors:
     The ground truth stays in ``sim/state``.
     """
 
-    KEY: ClassVar[str] = "sensors"
     step: int
     t: float
     encoders: tuple[float, ...]
@@ -458,7 +420,6 @@ class Setpoints:
     On the wire the columns are flat arrays: ``t`` (n), ``pose`` (7n), ``twist`` (6n), ``accel`` (6n).
     """
 
-    KEY: ClassVar[str] = "setpoints"
     items: tuple[Setpoint, ...]
 
     def encode(self) -> bytes:
@@ -489,7 +450,6 @@ class Telemetry:
     array (see docs/protocol.md).
     """
 
-    KEY: ClassVar[str] = "telemetry"
     states: tuple[State, ...]
     commands: tuple[Command, ...] = ()
     lags: tuple[float, ...] = ()
@@ -569,7 +529,6 @@ class ServiceStats:
     """``stats/{service}``: a service's fault counters (dropped, clamped, … messages), about once a second
     while they change and once when the service stops. The clock gathers them into its status."""
 
-    KEY: ClassVar[str] = "stats"
     service: str
     counters: dict[str, int]
 
@@ -602,7 +561,6 @@ class Status:
     participants without a liveliness token; ``stats`` holds the clock's counters (documented).
     """
 
-    KEY: ClassVar[str] = "status"
     state: str
     step: int
     t: float

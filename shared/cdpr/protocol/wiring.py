@@ -3,7 +3,10 @@
 Like a dora-rs dataflow or a Drake diagram, each node lists its inputs (``subscribes``) and outputs
 (``publishes``) by topic name; :func:`cdpr.runtime.service.serve` declares exactly these on Zenoh for
 the node (a node cannot publish a topic it did not list), the in-process composition wires the same
-names, and tests check that docs/protocol.md and docker/compose.yaml say the same. Every node also
+names, and tests check that docs/protocol.md and docker/compose.yaml say the same. Everything else is derived
+from these two tables: a node's ``subscribes``/``publishes`` (its row, set on the class from its name), the
+session's key expressions (:class:`cdpr.protocol.Keys`: ``keys.tick`` is ``cdpr/{session}/`` + the topic's key)
+and the service names that may hold a liveliness token. Every node also
 subscribes to ``status`` and publishes ``stats`` and a liveliness token ``alive/{node}``: the serve loop
 does that for all of them, so they are listed here once (:data:`EVERY_NODE`) rather than per node.
 """

@@ -202,9 +202,8 @@ def controller(fn: Callable[..., Any]) -> FunctionController:
 class _ControllerNode(Node):
     """The controller's side of the protocol, around a user's :class:`RemoteController`."""
 
-    name = "controller"
-    subscribes = ("state", "setpoints")  # declared before session/info is fetched: queued until then
-    publishes = ("command",)
+    name = "controller"  # its topics are the controller's row of the wiring table (state and setpoints are
+    #                      declared before session/info is fetched: queued until then)
 
     def __init__(self, ctrl: RemoteController, keys: Keys, stop: StopFlag, fetch: bool,
                  info_timeout: float | None, idle_timeout: float | None) -> None:

@@ -37,7 +37,7 @@ import zenoh
 from cdpr import protocol
 from cdpr.errors import InputError
 from cdpr.protocol import Keys, ProtocolError, ServiceStats, Status
-from cdpr.protocol.wiring import TOPICS, check_node
+from cdpr.protocol.wiring import TOPICS, WIRING, check_node
 from cdpr.runtime.transport import PUBLISH_OPTS, Event, Inbox, RateLimitedLog, StopFlag, log, open_session
 
 if TYPE_CHECKING:
@@ -53,11 +53,16 @@ class Node:
 
     name = "node"
     direct = False  # handle events on Zenoh's receive thread (see the module docstring)
-    # The topics this node reads and writes (names of cdpr.protocol.wiring.TOPICS): serve() declares
-    # them, after checking them against the node's row of the wiring table. Events arrive with the topic
+    # The topics this node reads and writes (names of cdpr.protocol.wiring.TOPICS): its row of the wiring
+    # table, set for each subclass from its ``name``; serve() declares them. Events arrive with the topic
     # name as their kind; publishers wait in ``self.publishers[topic]``.
     subscribes: tuple[str, ...] = ()
     publishes: tuple[str, ...] = ()
+
+    def __init_subclass__(cls, **kwargs: Any) -> None:
+        super().__init_subclass__(**kwargs)
+        if (row := WIRING.get(cls.name)) is not None:
+            cls.subscribes, cls.publishes = row.subscribes, row.publishes
     # What this node checks of its scenario when it loads it (cdpr.config.scenario.load_scenario).
     scenario_checks: tuple[str, ...] = ()
 
