@@ -18,7 +18,7 @@ import pytest
 from scipy.integrate import solve_ivp
 
 from cdpr.config.robot import load_robot
-from cdpr.config.scenario import load_scenario
+from cdpr.config.scenario import ElasticSpec, SagSpec, WinchSpec, load_scenario
 from cdpr.errors import InputError
 from cdpr.mechanics.catenary import (
     CatenaryError,
@@ -37,10 +37,10 @@ from cdpr.protocol import PROTOCOL_VERSION, Command, ProtocolError
 from cdpr.protocol.session import session_info
 from cdpr_controller.core import ControllerCore, stretch_compensated_lengths
 from cdpr_sim.core import PlatformSim
-from cdpr_sim.elastic import ElasticParams, ElasticSim, elastic_tensions, unstretched_lengths
+from cdpr_sim.elastic import ElasticSim, elastic_tensions, unstretched_lengths
 from cdpr_sim.models import make_sim
-from cdpr_sim.sag import SagParams, SagSim
-from cdpr_sim.winch import WinchParams, WinchState, drive_torque, drum_step, substeps_for
+from cdpr_sim.sag import SagSim
+from cdpr_sim.winch import WinchState, drive_torque, drum_step, substeps_for
 
 G = 9.81
 DT = 1e-3
@@ -89,7 +89,7 @@ def test_elastic_law() -> None:
 def test_static_stretch_of_a_hanging_mass_is_m_g_l0_over_ea(mass: float, EA: float, l0: float) -> None:
     """A winch holds l0 of cable; the mass settles where the cable has stretched by m g l0 / EA."""
     robot = hanging_robot(mass)
-    sim = ElasticSim(robot, DT, [0.0, 0.0, 1.0], params=ElasticParams(EA, 200.0), command="lengths")
+    sim = ElasticSim(robot, DT, [0.0, 0.0, 1.0], params=ElasticSpec(EA=EA, damping=200.0), command="lengths")
     assert sim.encoder_lengths()[0] == pytest.approx(2.0 * EA / (EA + mass * G))  # starts holding it
     for _ in range(5000):
         sim.step(np.array([l0]))
@@ -160,7 +160,7 @@ def test_interface_time_reset_bad_inputs_determinism() -> None:
     with pytest.raises(ValueError, match="command must be"):
         ElasticSim(robot, DT, command="torques")  # type: ignore[arg-type]
     with pytest.raises(ValueError, match="EA"):
-        ElasticParams(EA=0.0)
+        ElasticSpec(EA=0.0)
     sims[0].reset([0.0, 0.0, 1.0])
     s = sims[0].state()
     assert s.step == 0
@@ -188,7 +188,7 @@ def test_substeps_keep_the_stiff_cables_stable_at_1_ms() -> None:
     robot = caroca15()
     p0 = np.array([0.9, 0.9, 0.2])
     sim = ElasticSim(robot, DT, p0, command="lengths")
-    assert sim.substeps == substeps_for(robot, DT, 1e6 / inverse_kinematics(robot, p0).lengths, WinchParams(),
+    assert sim.substeps == substeps_for(robot, DT, 1e6 / inverse_kinematics(robot, p0).lengths, WinchSpec(),
                                         200.0, p0, np.eye(3))
     assert 2 <= sim.substeps <= 10
     l0 = sim.encoder_lengths().copy()
@@ -200,7 +200,7 @@ def test_substeps_keep_the_stiff_cables_stable_at_1_ms() -> None:
 
 
 def test_winch_drive() -> None:
-    p = WinchParams(radius=0.1, inertia=0.01, friction=0.0, torque_max=5.0, kp=100.0, ki=10.0, kd=1.0)
+    p = WinchSpec(radius=0.1, inertia=0.01, friction=0.0, torque_max=5.0, kp=100.0, ki=10.0, kd=1.0)
     s = WinchState(np.zeros(2), np.zeros(2), np.zeros(2))
     torque, integral, saturated = drive_torque(p, s, np.array([0.01, 1.0]), np.zeros(2), 1e-3)
     assert torque == pytest.approx([1.0, 5.0])  # kp·e, then the limit
@@ -283,7 +283,7 @@ def test_catenary_vectorised_and_failures() -> None:
 def test_sag_sim_holds_its_weight_on_catenaries() -> None:
     """Held at the start lengths, the platform stays put; the catenaries' platform ends carry its weight."""
     robot = caroca15()
-    params = SagParams(mass_per_length=0.05)
+    params = SagSpec(mass_per_length=0.05)
     p0 = np.array([0.9, 0.9, 0.2])
     sim = SagSim(robot, DT, p0, params=params, command="lengths")
     l0 = sim.encoder_lengths().copy()
@@ -313,12 +313,12 @@ def test_sag_sim_holds_its_weight_on_catenaries() -> None:
 
 def test_sag_tension_mode_holds_the_command_at_the_platform_end() -> None:
     robot = caroca15()
-    sim = SagSim(robot, DT, [0.0, 0.0, 1.0], params=SagParams(mass_per_length=0.05))
+    sim = SagSim(robot, DT, [0.0, 0.0, 1.0], params=SagSpec(mass_per_length=0.05))
     f = np.linspace(15.0, 50.0, 8)
     sim.step(f)
     assert sim.state().tensions == pytest.approx(f, rel=1e-9)
     assert np.all(sim.load_cell_tensions() > f)  # the frame end also lifts the cable
-    frame = SagSim(robot, DT, [0.0, 0.0, 1.0], params=SagParams(mass_per_length=0.05, tension_at="frame"))
+    frame = SagSim(robot, DT, [0.0, 0.0, 1.0], params=SagSpec(mass_per_length=0.05, tension_at="frame"))
     frame.step(f)
     assert frame.load_cell_tensions() == pytest.approx(f, rel=1e-9)
     assert np.all(frame.state().tensions < f)
@@ -331,7 +331,7 @@ def test_light_sagging_cables_behave_like_straight_ones() -> None:
     robot = caroca15()
     p0 = np.array([0.3, -0.2, 0.8])
     # 0.1 g/m: the sag lengthens a 5 m cable at 10 N by w² l³ / (24 T²) ≈ 5e-8 m
-    sag = SagSim(robot, DT, p0, params=SagParams(mass_per_length=1e-4), command="lengths")
+    sag = SagSim(robot, DT, p0, params=SagSpec(mass_per_length=1e-4), command="lengths")
     straight = ElasticSim(robot, DT, p0, command="lengths")
     l0 = straight.encoder_lengths().copy()
     assert sag.encoder_lengths() == pytest.approx(l0, abs=1e-6)
@@ -340,7 +340,7 @@ def test_light_sagging_cables_behave_like_straight_ones() -> None:
         sag.step(target)
         straight.step(target)
     assert np.abs(sag.state().position - straight.state().position).max() < 1e-6
-    heavy = SagSim(robot, DT, p0, params=SagParams(mass_per_length=0.05), command="lengths")
+    heavy = SagSim(robot, DT, p0, params=SagSpec(mass_per_length=0.05), command="lengths")
     assert np.abs(heavy.encoder_lengths() - l0).max() > 1e-4  # while 50 g/m sag by much more
 
 
@@ -350,7 +350,7 @@ def test_sag_cable_right_under_its_anchor_holds_a_mass_without_fallback(off: flo
     it, held at its start length: the hanging elastic rod. It stays put, the platform end holds m g, the
     winch m g and the cable's weight (the old solver fell back to a straight, weightless cable here)."""
     robot = hanging_robot(1.0).replace(frame_points=np.array([[off, 0.0, 3.0]]))
-    params = SagParams(mass_per_length=0.05)
+    params = SagSpec(mass_per_length=0.05)
     sim = SagSim(robot, DT, [0.0, 0.0, 1.0], params=params, command="lengths")
     l0 = sim.encoder_lengths().copy()
     for _ in range(300):
@@ -371,7 +371,7 @@ def test_sag_steps_outside_the_domain_are_counted_not_silent() -> None:
     cables, and only those, are straight elastic cables with the commanded tension, and each such step
     is counted once (however many cables), with the reason."""
     robot = caroca15()
-    params = SagParams(mass_per_length=5.0, tension_at="frame")
+    params = SagSpec(mass_per_length=5.0, tension_at="frame")
     sim = SagSim(robot, DT, [0.0, 0.0, 1.0], params=params)
     assert sim.fallbacks == 0
     f = np.full(8, 400.0)
@@ -398,7 +398,7 @@ def test_a_catenary_the_solver_misses_falls_back_for_that_cable_only(monkeypatch
     import cdpr_sim.sag as sag
 
     robot = caroca15()
-    sim = SagSim(robot, DT, [0.0, 0.0, 1.0], params=SagParams(mass_per_length=0.05), command="lengths")
+    sim = SagSim(robot, DT, [0.0, 0.0, 1.0], params=SagSpec(mass_per_length=0.05), command="lengths")
     straight = ElasticSim(robot, DT, [0.0, 0.0, 1.0], command="lengths")
     real = sag.solve_catenary
 
@@ -429,7 +429,8 @@ def test_a_catenary_the_solver_misses_falls_back_for_that_cable_only(monkeypatch
 def test_elastic_cable_goes_slack_and_taut_again() -> None:
     """Paying out 5 cm under a 10 kg mass on an undamped cable: it falls freely (exactly g, DART's
     gravity) while the cable is slack, is caught, bounces, and goes slack and taut again, repeatedly."""
-    sim = ElasticSim(hanging_robot(10.0), DT, [0.0, 0.0, 1.0], params=ElasticParams(2e4, 0.0), command="lengths")
+    sim = ElasticSim(hanging_robot(10.0), DT, [0.0, 0.0, 1.0], params=ElasticSpec(EA=2e4, damping=0.0),
+                     command="lengths")
     l0 = sim.encoder_lengths().copy()
     tensions, speeds = [], []
     for _ in range(3000):
@@ -529,7 +530,7 @@ def test_winch_length_limits() -> None:
     assert sim.stopped > 0
     with pytest.raises(ValueError, match="> 0"):
         sim.step(np.array([0.0]))
-    weak = ElasticSim(robot, DT, [0.0, 0.0, 1.0], command="lengths", winch=WinchParams(torque_max=1.0))
+    weak = ElasticSim(robot, DT, [0.0, 0.0, 1.0], command="lengths", winch=WinchSpec(torque_max=1.0))
     start = weak.encoder_lengths()[0]
     for _ in range(3000):
         weak.step(np.array([start]))  # 1 N·m cannot hold m g r = 4.9 N·m
@@ -647,3 +648,47 @@ def test_scenarios_choose_models_and_outputs(tmp_path: Path) -> None:
     text.write_text(ideal.replace("  winch: {", "  # winch: {"), encoding="utf-8")
     with pytest.raises(InputError, match=r"controller\.output: lengths needs sim\.cable_model elastic"):
         load_scenario(text)
+
+
+def test_every_cable_model_of_the_scenario_table_has_a_sim() -> None:
+    from cdpr.config.scenario import CABLE_MODELS
+    from cdpr_sim.models import SIM_MODELS
+
+    assert list(SIM_MODELS) == list(CABLE_MODELS)
+    for name, model in CABLE_MODELS.items():
+        scenario = load_scenario("caroca_15kg", {"duration": 0.01, "sim": {"cable_model": name}})
+        sim = make_sim(scenario)
+        assert sim.robot is scenario.robot
+        assert (model.params is None) == (scenario.spec.sim.cable_params is None)
+        assert session_info(scenario)["sim"] == (
+            {"cable_model": name} if model.params is None
+            else {"cable_model": name, name: scenario.spec.sim.cable_params.model_dump()})
+    with pytest.raises(InputError, match=r"sim\.cable_model: .*unknown cable model 'rubber' \(known: ideal, ups, "):
+        load_scenario("caroca_15kg", {"sim": {"cable_model": "rubber"}})
+
+
+def test_a_cable_model_is_its_module_and_a_row_in_each_table(monkeypatch: pytest.MonkeyPatch,
+                                                              capsys: pytest.CaptureFixture[str]) -> None:
+    """What adding a cable model takes (docs/cable-models.md): a row in cdpr.config.scenario.CABLE_MODELS (and a
+    parameters section there, if it has parameters) and one in cdpr_sim.models.SIM_MODELS; the scenario's
+    validation, session/info, the sim node and the launcher follow. Here a test-only model (the ideal cable's
+    physics under another name) runs a whole in-process session: the same states as the ideal cables."""
+    from cdpr.config import scenario as scenario_config
+    from cdpr.tools.launch import RunOptions, run_session
+    from cdpr_sim import models
+    from conftest import last_json_line
+
+    class TwinSim(PlatformSim):
+        pass
+
+    monkeypatch.setitem(scenario_config.CABLE_MODELS, "twin", scenario_config.CableModel("the ideal cable again"))
+    monkeypatch.setitem(models.SIM_MODELS, "twin", TwinSim)
+    summaries = {}
+    for name in ("ideal", "twin"):
+        scenario = load_scenario("caroca_15kg", {"duration": 0.2, "sim": {"cable_model": name}})
+        assert session_info(scenario)["sim"] == {"cable_model": name}
+        assert run_session(scenario, RunOptions(session_id=f"model-{name}", quiet=True, in_process=True)) == 0
+        summaries[name] = last_json_line(capsys.readouterr().out)
+    assert isinstance(make_sim(load_scenario("caroca_15kg", {"sim": {"cable_model": "twin"}})), TwinSim)
+    assert summaries["twin"]["steps"] == summaries["ideal"]["steps"] == 200
+    assert summaries["twin"]["state_digest"] == summaries["ideal"]["state_digest"]

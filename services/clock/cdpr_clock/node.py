@@ -17,7 +17,7 @@ import zenoh
 
 from cdpr.config.scenario import Scenario
 from cdpr.errors import InputError
-from cdpr.protocol import SERVICES, Keys, Status, Tick
+from cdpr.protocol import SERVICES, ClockState, Keys, Status, Tick
 from cdpr.protocol.session import encode_session_info
 from cdpr.runtime.service import Node
 from cdpr.runtime.transport import Event, Inbox, log
@@ -52,7 +52,7 @@ class ClockNode(Node):
         self.resend_after = resend_after
         self.status_period = status_period
         self.last_status = 0.0
-        self.state = "waiting"
+        self.state: ClockState = "waiting"
         self.reason = ""
         self.finished_at: float | None = None
         self.faults: dict[str, dict[str, int]] = {}  # every service's fault counters (stats/{service})
@@ -205,7 +205,7 @@ class ClockNode(Node):
         self._tick.put(Tick(first, first * self.core.dt, until, resend, flush or resend).encode())
 
     # -- status -----------------------------------------------------------------------------------
-    def set_state(self, state: str, reason: str, now: float) -> None:
+    def set_state(self, state: ClockState, reason: str, now: float) -> None:
         self.state, self.reason = state, reason
         if reason:
             log(self.name, f"{state}: {reason}")

@@ -70,8 +70,8 @@ class ControllerCore:
 
     @classmethod
     def from_scenario(cls, scenario: Scenario) -> ControllerCore:
-        sim = scenario.spec.sim
-        EA = {"elastic": sim.elastic.EA, "sag": sim.sag.EA}.get(sim.cable_model)
+        params = scenario.spec.sim.cable_params  # a stretching cable's EA, for length commands
+        EA = None if params is None else params.EA
         tda = make_tda(scenario.tda_method, **scenario.tda_options)
         return cls(scenario.robot, scenario.gains, scenario.variant, tda, scenario.output, EA)
 

@@ -50,6 +50,7 @@ import dartpy as dart
 import numpy as np
 from numpy.typing import ArrayLike
 
+from cdpr.config.scenario import Scenario
 from cdpr.mechanics.kinematics import cable_geometry, cable_vectors
 from cdpr.mechanics.robot import GRAVITY, Robot
 from cdpr.mechanics.rotation import Array, matrix_to_quat
@@ -248,6 +249,11 @@ class PlatformSim:
         self._snap: _Snapshot | None = None
         self._reads: tuple[Array, Array, Array, Array] | None = None
         self.reset(position, rotation, twist)
+
+    @classmethod
+    def from_scenario(cls, scenario: Scenario) -> PlatformSim:
+        """The sim of ``scenario``: its robot and dt, at its initial pose."""
+        return cls(scenario.robot, scenario.dt, scenario.initial_position, scenario.initial_rotation)
 
     @property
     def t(self) -> float:

@@ -21,7 +21,7 @@ the steps where it had to (``fallbacks``).
 Winches, the two command modes (tensions: ideal torque-controlled winch, the applied tension is the
 command, ``l0 = l·EA/(EA + f)``; lengths: PID-driven drums whose angle sets l0) and the sub-stepped
 integration are :class:`cdpr_sim.winch.WinchSim`'s. With the shipped defaults (``EA`` = 1 MN, about a
-4 mm steel wire rope, ``c`` = 200 N·s/m, the default :class:`~cdpr_sim.winch.WinchParams`) and CAROCA at
+4 mm steel wire rope, ``c`` = 200 N·s/m, the default :class:`~cdpr.config.scenario.WinchSpec`) and CAROCA at
 15 kg, the fastest modes are the drum on its cable (√(k r²/J + kp/J) ≈ 1.0·10³ rad/s) and the platform on
 its eight cables (≈ 370 rad/s, the stiffest direction of ``W diag(k) Wᵀ`` through M); their bound
 ≈ 1.1·10³ rad/s makes :func:`~cdpr_sim.winch.substeps_for` pick 4 sub-steps at dt = 1 ms (h = 0.25 ms,
@@ -31,29 +31,12 @@ its eight cables (≈ 370 rad/s, the stiffest direction of ``W diag(k) Wᵀ`` th
 
 from __future__ import annotations
 
-import math
-from dataclasses import dataclass
-
 import numpy as np
 from numpy.typing import ArrayLike
 
-from cdpr.config.scenario import SimSpec
+from cdpr.config.scenario import ElasticSpec
 from cdpr.mechanics.rotation import Array
 from cdpr_sim.winch import CableForces, Geometry, WinchSim
-
-
-@dataclass(frozen=True)
-class ElasticParams:
-    """Axial stiffness ``EA`` (N) and damping (N·s/m) of every cable."""
-
-    EA: float = 1.0e6
-    damping: float = 200.0
-
-    def __post_init__(self) -> None:
-        if not (math.isfinite(self.EA) and self.EA > 0.0):
-            raise ValueError(f"EA must be a positive finite number of N (got {self.EA})")
-        if not (math.isfinite(self.damping) and self.damping >= 0.0):
-            raise ValueError(f"damping must be a finite number >= 0 N·s/m (got {self.damping})")
 
 
 def elastic_tensions(lengths: ArrayLike, rates: ArrayLike, l0: ArrayLike, l0_rates: ArrayLike, EA: float,
@@ -84,8 +67,8 @@ class ElasticSim(WinchSim):
     ``command``: ``"tensions"`` or ``"lengths"``; see :class:`cdpr_sim.winch.WinchSim` for the rest.
     """
 
-    params_type = ElasticParams
-    params: ElasticParams
+    params_type = ElasticSpec
+    params: ElasticSpec
 
     def _law(self, g: Geometry, l0: Array, l0_rate: Array) -> CableForces:
         f = elastic_tensions(g.lengths, g.rates, l0, l0_rate, self.params.EA, self.params.damping)
@@ -94,10 +77,6 @@ class ElasticSim(WinchSim):
     def _law_for_tension(self, g: Geometry, tensions: Array) -> tuple[CableForces, Array]:
         f = np.asarray(tensions, dtype=float)
         return CableForces(f[:, None] * g.directions, f, f), unstretched_lengths(g.lengths, f, self.params.EA)
-
-    @staticmethod
-    def _params(spec: SimSpec) -> ElasticParams:
-        return ElasticParams(**spec.elastic.model_dump())
 
     def _stiffness(self, lengths: Array) -> Array:
         return self.params.EA / np.asarray(lengths, dtype=float)

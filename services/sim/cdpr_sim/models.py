@@ -5,6 +5,8 @@ Every model has the interface of :class:`~cdpr_sim.core.SimModel`.
 
 from __future__ import annotations
 
+from typing import Protocol
+
 from cdpr.config.scenario import Scenario
 from cdpr_sim.core import PlatformSim, SimModel
 from cdpr_sim.elastic import ElasticSim
@@ -12,11 +14,20 @@ from cdpr_sim.sag import SagSim
 from cdpr_sim.ups import UpsSim
 
 
+class _FromScenario(Protocol):
+    def from_scenario(self, scenario: Scenario) -> SimModel: ...
+
+
+# The sim's class of each cable model of cdpr.config.scenario.CABLE_MODELS (tests/test_cable_models.py: the same
+# names): a new cable model is its module, its row there (and its parameters' section), and its row here.
+SIM_MODELS: dict[str, _FromScenario] = {
+    "ideal": PlatformSim,
+    "ups": UpsSim,
+    "elastic": ElasticSim,
+    "sag": SagSim,
+}
+
+
 def make_sim(scenario: Scenario) -> SimModel:
     """The physics of the scenario's cable model."""
-    if scenario.cable_model == "ups":
-        return UpsSim(scenario.robot, scenario.dt, scenario.initial_position, scenario.initial_rotation)
-    if scenario.cable_model in ("elastic", "sag"):  # winch-driven cables: tension or length commands
-        model = ElasticSim if scenario.cable_model == "elastic" else SagSim
-        return model.from_scenario(scenario)
-    return PlatformSim(scenario.robot, scenario.dt, scenario.initial_position, scenario.initial_rotation)
+    return SIM_MODELS[scenario.cable_model].from_scenario(scenario)

@@ -32,14 +32,10 @@ Winch drives, modes, sub-steps: :class:`cdpr_sim.winch.WinchSim`.
 
 from __future__ import annotations
 
-import math
-from dataclasses import dataclass
-from typing import Literal
-
 import numpy as np
 from numpy.typing import ArrayLike
 
-from cdpr.config.scenario import SimSpec
+from cdpr.config.scenario import SagSpec
 from cdpr.mechanics.catenary import (
     CatenaryError,
     CatenaryForces,
@@ -48,38 +44,9 @@ from cdpr.mechanics.catenary import (
     solve_catenary,
     solve_catenary_tension,
 )
-from cdpr.mechanics.robot import GRAVITY
 from cdpr.mechanics.rotation import Array
 from cdpr_sim.elastic import elastic_tensions, unstretched_lengths
 from cdpr_sim.winch import CableForces, Geometry, WinchSim
-
-G = float(-GRAVITY[2])
-
-
-@dataclass(frozen=True)
-class SagParams:
-    """Cable mass per length (kg/m), axial stiffness EA (N), damping (N·s/m), where tension is commanded."""
-
-    mass_per_length: float = 0.1
-    EA: float = 1.0e6
-    damping: float = 200.0
-    tension_at: Literal["platform", "frame"] = "platform"
-
-    def __post_init__(self) -> None:
-        if not (math.isfinite(self.mass_per_length) and self.mass_per_length > 0.0):
-            raise ValueError(f"mass_per_length must be a positive finite number of kg/m "
-                             f"(got {self.mass_per_length})")
-        if not (math.isfinite(self.EA) and self.EA > 0.0):
-            raise ValueError(f"EA must be a positive finite number of N (got {self.EA})")
-        if not (math.isfinite(self.damping) and self.damping >= 0.0):
-            raise ValueError(f"damping must be a finite number >= 0 N·s/m (got {self.damping})")
-        if self.tension_at not in ("platform", "frame"):
-            raise ValueError(f"tension_at must be 'platform' or 'frame' (got {self.tension_at!r})")
-
-    @property
-    def weight_per_length(self) -> float:
-        """w, N/m."""
-        return self.mass_per_length * G
 
 
 class SagSim(WinchSim):
@@ -88,8 +55,8 @@ class SagSim(WinchSim):
     ``command``: ``"tensions"`` or ``"lengths"``; see :class:`cdpr_sim.winch.WinchSim` for the rest.
     """
 
-    params_type = SagParams
-    params: SagParams
+    params_type = SagSpec
+    params: SagSpec
     _warm: tuple[Array, Array] | None = None  # (H, V0) of the last lengths-mode solve
     _warm_tension: tuple[Array, Array] | None = None  # (φ, L0) of the last tensions-mode solve
 
@@ -179,10 +146,6 @@ class SagSim(WinchSim):
                            f"{out.tolist()} ({', '.join(f'{x:.4g}' for x in f[out])} N): straight cable(s) used")
         self._warm_tension = (phi_all, l0.copy())
         return CableForces(forces, platform, frame), l0
-
-    @staticmethod
-    def _params(spec: SimSpec) -> SagParams:
-        return SagParams(**spec.sag.model_dump())
 
     def _holding_floor(self, g: Geometry) -> Array:
         """At the start each cable holds at least twice its own weight along the chord (sag ≲ 1/16 of it)."""

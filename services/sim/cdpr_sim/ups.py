@@ -81,6 +81,7 @@ import dartpy as dart
 import numpy as np
 from numpy.typing import ArrayLike
 
+from cdpr.config.scenario import Scenario
 from cdpr.mechanics.robot import Robot
 from cdpr.mechanics.rotation import Array
 from cdpr.protocol import State
@@ -177,6 +178,11 @@ class UpsSim:
         lower.setInertia(inertia)
         self._world.addSkeleton(skeleton)
         return _Leg(skeleton, universal, lower)
+
+    @classmethod
+    def from_scenario(cls, scenario: Scenario) -> UpsSim:
+        """The sim of ``scenario``: its robot and dt, at its initial pose."""
+        return cls(scenario.robot, scenario.dt, scenario.initial_position, scenario.initial_rotation)
 
     @property
     def t(self) -> float:

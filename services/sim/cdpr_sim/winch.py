@@ -69,12 +69,13 @@ from __future__ import annotations
 import math
 from abc import ABC, abstractmethod
 from dataclasses import dataclass
-from typing import Any, ClassVar, Literal
+from typing import ClassVar
 
 import numpy as np
 from numpy.typing import ArrayLike
 
-from cdpr.config.scenario import Scenario, SimSpec
+from cdpr.config.scenario import Scenario, StretchSpec, WinchSpec
+from cdpr.mechanics.control import COMMAND_KINDS, CommandKind
 from cdpr.mechanics.dynamics import gravity_wrench, mass_matrix
 from cdpr.mechanics.kinematics import cable_geometry, inverse_kinematics
 from cdpr.mechanics.robot import Robot
@@ -92,31 +93,8 @@ from cdpr_sim.core import (
     state_message,
 )
 
-CommandKind = Literal["tensions", "lengths"]
-COMMAND_KINDS: tuple[str, ...] = ("tensions", "lengths")
 ACCURACY = 0.3  # ω h of the fastest mode that :func:`substeps_for` allows
 DAMPING_LIMIT = 0.5  # (c r² + kd + b) h / J that :func:`substeps_for` allows
-
-
-@dataclass(frozen=True)
-class WinchParams:
-    """One winch drive (all winches of a robot are alike). SI units; gains act on the drum angle."""
-
-    radius: float = 0.05  # m, drum radius r: l0 = r θ
-    inertia: float = 1e-3  # kg·m², rotor and drum about the drum axis, J
-    friction: float = 0.01  # N·m·s/rad, viscous friction b
-    torque_max: float = 50.0  # N·m, the drive's torque (current) limit
-    kp: float = 400.0  # N·m/rad
-    ki: float = 8000.0  # N·m/(rad·s)
-    kd: float = 1.0  # N·m·s/rad
-
-    def __post_init__(self) -> None:
-        for name in ("radius", "inertia", "torque_max"):
-            if not (math.isfinite(getattr(self, name)) and getattr(self, name) > 0.0):
-                raise ValueError(f"winch {name} must be a positive finite number (got {getattr(self, name)})")
-        for name in ("friction", "kp", "ki", "kd"):
-            if not (math.isfinite(getattr(self, name)) and getattr(self, name) >= 0.0):
-                raise ValueError(f"winch {name} must be a finite number >= 0 (got {getattr(self, name)})")
 
 
 @dataclass(frozen=True)
@@ -129,7 +107,7 @@ class WinchState:
 
 
 def drive_torque(
-    p: WinchParams, s: WinchState, angle_ref: Array, speed_ref: Array, h: float
+    p: WinchSpec, s: WinchState, angle_ref: Array, speed_ref: Array, h: float
 ) -> tuple[Array, Array, Array]:
     """The PID's torque (m,), its new integral, and which drives saturated (bool (m,)). Pure."""
     error = angle_ref - s.angle
@@ -142,7 +120,7 @@ def drive_torque(
     return torque, integral, saturated
 
 
-def drum_step(p: WinchParams, s: WinchState, torque: Array, tension: Array, integral: Array,
+def drum_step(p: WinchSpec, s: WinchState, torque: Array, tension: Array, integral: Array,
               h: float) -> WinchState:
     """One semi-implicit Euler step of J θ̈ = τ + r f − b θ̇ (f: the tension at the drum). Pure."""
     speed = s.speed + h * (torque + p.radius * tension - p.friction * s.speed) / p.inertia
@@ -159,7 +137,7 @@ def end_stops(s: WinchState, low: float, high: float) -> tuple[WinchState, int]:
     return WinchState(np.clip(s.angle, low, high), speed, s.integral), int(np.count_nonzero(below | above))
 
 
-def min_length_for(EA: float, mass: float, winch: WinchParams, h: float) -> float:
+def min_length_for(EA: float, mass: float, winch: WinchSpec, h: float) -> float:
     """The shortest unstretched length (m) whose cable the explicit sub-steps of ``h`` still follow.
 
     A cable of stiffness k = EA/l0 on a drum makes the mode ω² = k r²/J + kp/J, and on the platform at
@@ -194,7 +172,7 @@ class CableForces:
     frame: Array  # (m,) tension magnitude at the frame end (what the winch and its load cell feel)
 
 
-def substeps_for(robot: Robot, dt: float, stiffness: Array, winch: WinchParams, damping: float,
+def substeps_for(robot: Robot, dt: float, stiffness: Array, winch: WinchSpec, damping: float,
                  position: Array, rotation: Array) -> int:
     """Sub-steps per ``dt`` so that the fastest mode has ω h ≤ ACCURACY (module docstring)."""
     kin = inverse_kinematics(robot, position, rotation)
@@ -221,7 +199,7 @@ class WinchSim(ABC):
     ``params`` are the cable law's parameters (a :attr:`params_type`, its defaults when None).
     """
 
-    params_type: ClassVar[type]  # the cable law's parameter class, set by each subclass
+    params_type: ClassVar[type[StretchSpec]]  # the cable law's parameters (a scenario section), set by each subclass
 
     def __init__(
         self,
@@ -231,9 +209,9 @@ class WinchSim(ABC):
         rotation: ArrayLike | None = None,
         twist: ArrayLike | None = None,
         *,
-        params: Any = None,
+        params: StretchSpec | None = None,
         command: CommandKind = "tensions",
-        winch: WinchParams | None = None,
+        winch: WinchSpec | None = None,
         substeps: int | None = None,
     ) -> None:
         self.dt = check_dt(dt)
@@ -244,7 +222,7 @@ class WinchSim(ABC):
             raise ValueError(f"substeps must be an integer >= 1 (got {substeps!r})")
         self.robot = robot
         self.command: CommandKind = command
-        self.winch = winch if winch is not None else WinchParams()
+        self.winch = winch if winch is not None else WinchSpec()
         self.step_count = 0
         self.saturated = 0  # drive-steps (cable × sub-step) spent at the torque limit since reset
         self.stopped = 0  # drive-steps (cable × sub-step) spent at a drum end stop since reset
@@ -278,16 +256,11 @@ class WinchSim(ABC):
             scenario.dt,
             scenario.initial_position,
             scenario.initial_rotation,
-            params=cls._params(spec),
-            command="lengths" if scenario.output == "lengths" else "tensions",
-            winch=WinchParams(**spec.winch.model_dump()),
+            params=spec.cable_params,
+            command=scenario.output,
+            winch=spec.winch,
             substeps=spec.substeps,
         )
-
-    @staticmethod
-    @abstractmethod
-    def _params(spec: SimSpec) -> object:
-        """The cable law's parameters from the scenario's ``sim`` section."""
 
     # -- the force law, given by subclasses -------------------------------------------------------
     @abstractmethod

@@ -26,8 +26,8 @@ from cdpr.config.loading import parse_model, read_yaml, resolve, shipped_names
 from cdpr.config.robot import load_robot
 from cdpr.config.trajectory import TrajectorySpec
 from cdpr.errors import InputError
-from cdpr.mechanics.control import Gains, Variant
-from cdpr.mechanics.robot import Robot
+from cdpr.mechanics.control import CommandKind, Gains, Variant
+from cdpr.mechanics.robot import GRAVITY, Robot
 from cdpr.mechanics.rotation import rpy_to_matrix
 from cdpr.mechanics.trajectory import Trajectory
 
@@ -68,7 +68,7 @@ class ControllerSpec(_Strict):
     kp: Gain = 1500.0
     kd: Gain = 1500.0
     tda: TdaSpec = Field(default_factory=TdaSpec)
-    output: Literal["tensions", "lengths"] = Field(
+    output: CommandKind = Field(
         "tensions",
         description="what the controller commands: cable tensions, or unstretched cable lengths (winch "
         "position control; needs sim.cable_model elastic or sag)",
@@ -84,29 +84,37 @@ class ControllerSpec(_Strict):
         return v
 
 
-class ElasticSpec(_Strict):
+class StretchSpec(_Strict):
+    """The parameters every stretching cable model has (the controller's stretch compensation uses EA)."""
+
+    EA: FiniteFloat = Field(1.0e6, gt=0.0, description="axial stiffness, N (k = EA / l0)")
+    damping: FiniteFloat = Field(200.0, ge=0.0, description="damping of the stretch rate, N·s/m")
+
+
+class ElasticSpec(StretchSpec):
     """Straight elastic cables (cdpr_sim.elastic)."""
 
-    EA: PositiveFloat = Field(1.0e6, description="axial stiffness, N (k = EA / l0)")
-    damping: FiniteFloat = Field(200.0, ge=0.0, description="damping of the stretch rate, N·s/m")
 
-
-class SagSpec(_Strict):
+class SagSpec(StretchSpec):
     """Heavy elastic cables hanging as Irvine's elastic catenary (cdpr_sim.sag)."""
 
-    mass_per_length: PositiveFloat = Field(0.1, description="kg/m")
-    EA: PositiveFloat = Field(1.0e6, description="axial stiffness, N")
-    damping: FiniteFloat = Field(200.0, ge=0.0, description="damping of the stretch rate, N·s/m")
+    mass_per_length: FiniteFloat = Field(0.1, gt=0.0, description="kg/m")
     tension_at: Literal["platform", "frame"] = Field("platform", description="where a tension command holds")
+
+    @property
+    def weight_per_length(self) -> float:
+        """w, N/m."""
+        return self.mass_per_length * float(-GRAVITY[2])
 
 
 class WinchSpec(_Strict):
-    """The winch drives of the elastic and sag models (cdpr_sim.winch.WinchParams)."""
+    """The winch drives of the winch-driven cable models (cdpr_sim.winch): all winches of a robot alike, SI units,
+    gains on the drum angle."""
 
-    radius: PositiveFloat = Field(0.05, description="drum radius, m")
-    inertia: PositiveFloat = Field(1e-3, description="rotor and drum inertia about the drum axis, kg·m²")
+    radius: FiniteFloat = Field(0.05, gt=0.0, description="drum radius, m (l0 = r θ)")
+    inertia: FiniteFloat = Field(1e-3, gt=0.0, description="rotor and drum inertia about the drum axis, kg·m²")
     friction: FiniteFloat = Field(0.01, ge=0.0, description="viscous friction, N·m·s/rad")
-    torque_max: PositiveFloat = Field(50.0, description="torque (current) limit, N·m")
+    torque_max: FiniteFloat = Field(50.0, gt=0.0, description="torque (current) limit, N·m")
     kp: FiniteFloat = Field(400.0, ge=0.0, description="PID on the drum angle, N·m/rad")
     ki: FiniteFloat = Field(8000.0, ge=0.0, description="N·m/(rad·s)")
     kd: FiniteFloat = Field(1.0, ge=0.0, description="N·m·s/rad")
@@ -148,12 +156,27 @@ class SensorsSpec(_Strict):
     imu: ImuSpec = Field(default_factory=lambda: ImuSpec())
 
 
+@dataclass(frozen=True)
+class CableModel:
+    """A cable model a scenario may name in ``sim.cable_model`` (the sim's class for it: cdpr_sim.models)."""
+
+    description: str
+    params: type[StretchSpec] | None = None  # its parameters: the SimSpec field of the model's name
+    winch: bool = False  # wound on winches: tension or length commands; sim.winch and sim.substeps apply
+
+
+CABLE_MODELS: dict[str, CableModel] = {
+    "ideal": CableModel("massless inextensible pull-only force elements"),
+    "ups": CableModel("the seed paper's universal-prismatic-spherical legs closed with ball-joint constraints"),
+    "elastic": CableModel("straight elastic cables on winches", ElasticSpec, winch=True),
+    "sag": CableModel("heavy elastic cables (elastic catenary) on winches", SagSpec, winch=True),
+}
+WINCH_MODELS = tuple(name for name, model in CABLE_MODELS.items() if model.winch)
+
+
 class SimSpec(_Strict):
-    cable_model: Literal["ideal", "ups", "elastic", "sag"] = Field(
-        "ideal",
-        description="ideal: massless inextensible pull-only force elements; ups: the seed paper's "
-        "universal-prismatic-spherical legs closed with ball-joint constraints; elastic: straight elastic "
-        "cables on winches; sag: heavy elastic cables (elastic catenary) on winches",
+    cable_model: str = Field(
+        "ideal", description="; ".join(f"{name}: {model.description}" for name, model in CABLE_MODELS.items())
     )
     elastic: ElasticSpec = Field(default_factory=lambda: ElasticSpec())
     sag: SagSpec = Field(default_factory=lambda: SagSpec())
@@ -162,14 +185,30 @@ class SimSpec(_Strict):
                                  "for stability and accuracy from the cables' stiffness)")
     sensors: SensorsSpec | None = Field(None, description="publish simulated sensor readings on sim/sensors")
 
+    @field_validator("cable_model")
+    @classmethod
+    def _known_model(cls, v: str) -> str:
+        if v not in CABLE_MODELS:
+            raise ValueError(f"unknown cable model {v!r} (known: {', '.join(CABLE_MODELS)})")
+        return v
+
     @model_validator(mode="after")
     def _params_match_model(self) -> SimSpec:
-        for name, models in (("elastic", ("elastic",)), ("sag", ("sag",)), ("winch", ("elastic", "sag")),
-                             ("substeps", ("elastic", "sag"))):
+        sections = {name: (name,) for name, model in CABLE_MODELS.items() if model.params is not None}
+        for name, models in (*sections.items(), ("winch", WINCH_MODELS), ("substeps", WINCH_MODELS)):
             if name in self.model_fields_set and self.cable_model not in models:
                 raise ValueError(f"{name}: used by cable_model {' or '.join(models)} only "
                                  f"(this scenario's is {self.cable_model})")
         return self
+
+    @property
+    def model(self) -> CableModel:
+        return CABLE_MODELS[self.cable_model]
+
+    @property
+    def cable_params(self) -> StretchSpec | None:
+        """The parameters of the scenario's cable model (its section of ``sim``), or None if it has none."""
+        return getattr(self, self.cable_model) if self.model.params is not None else None
 
 
 class InitialSpec(_Strict):
@@ -194,9 +233,9 @@ class ScenarioSpec(_Strict):
     def _dt_sane(self) -> ScenarioSpec:
         if self.dt > 0.1:
             raise ValueError(f"dt: {self.dt} s is too coarse for a cable robot (at most 0.1)")
-        if self.controller.output == "lengths" and self.sim.cable_model not in ("elastic", "sag"):
-            raise ValueError(f"controller.output: lengths needs sim.cable_model elastic or sag (winch-driven "
-                             f"cables), not {self.sim.cable_model}")
+        if self.controller.output == "lengths" and not self.sim.model.winch:
+            raise ValueError(f"controller.output: lengths needs sim.cable_model {' or '.join(WINCH_MODELS)} "
+                             f"(winch-driven cables), not {self.sim.cable_model}")
         return self
 
 
@@ -223,7 +262,7 @@ class Scenario:
         return round(self.duration / self.dt)
 
     @property
-    def output(self) -> str:
+    def output(self) -> CommandKind:
         """What the controller commands: ``tensions`` or ``lengths`` (unstretched cable lengths)."""
         return self.spec.controller.output
 

@@ -14,10 +14,11 @@ import math
 import re
 from collections.abc import Sequence
 from dataclasses import dataclass, field
-from typing import Any
+from typing import Any, Literal, get_args
 
 import msgpack
 
+from cdpr.mechanics.control import COMMAND_KINDS, CommandKind
 from cdpr.protocol.wiring import TOPICS, WIRING
 
 PROTOCOL_VERSION = 2  # 2: ticks grant windows; setpoints and telemetry travel in blocks
@@ -322,7 +323,7 @@ class Command:
     solve_time: float | None = None  # s the controller spent on this step (optional)
 
     @property
-    def kind(self) -> str:
+    def kind(self) -> CommandKind:
         """``"lengths"`` or ``"tensions"``: which command this is."""
         return "tensions" if self.lengths is None else "lengths"
 
@@ -344,7 +345,7 @@ class Command:
         )
 
     @classmethod
-    def decode(cls, payload: bytes, cables: int | None = None, expect: str | None = None) -> Command:
+    def decode(cls, payload: bytes, cables: int | None = None, expect: CommandKind | None = None) -> Command:
         """``expect`` (``"tensions"`` or ``"lengths"``): the kind the receiver takes (the other: an error)."""
         msg = unpack(payload)
         feasible = msg.get("feasible", True)
@@ -496,8 +497,8 @@ class Telemetry:
         k = len(c_steps)
         c_t = _vector(c, "t", k)
         kind = _field(c, "kind")
-        if kind not in ("tensions", "lengths"):
-            raise ProtocolError(f"command.kind: expected tensions or lengths, got {kind!r}")
+        if kind not in COMMAND_KINDS:
+            raise ProtocolError(f"command.kind: expected {' or '.join(COMMAND_KINDS)}, got {kind!r}")
         values = _rows(c, "values", k, m) if k else []
         feasible, status = _field(c, "feasible"), _field(c, "status")
         if not isinstance(feasible, list) or len(feasible) != k or not all(isinstance(x, bool) for x in feasible):
@@ -550,7 +551,8 @@ class ServiceStats:
         return cls(service, counters)
 
 
-CLOCK_STATES = ("waiting", "running", "paused", "finished", "aborted")
+ClockState = Literal["waiting", "running", "paused", "finished", "aborted"]
+CLOCK_STATES: tuple[ClockState, ...] = get_args(ClockState)
 
 
 @dataclass(frozen=True, slots=True)
@@ -561,7 +563,7 @@ class Status:
     participants without a liveliness token; ``stats`` holds the clock's counters (documented).
     """
 
-    state: str
+    state: ClockState
     step: int
     t: float
     total_steps: int

@@ -33,8 +33,8 @@ def session_info(scenario: Scenario) -> dict[str, Any]:
         "total_steps": scenario.total_steps,
         "robot": scenario.robot.summary(),
         "sim": {"cable_model": scenario.cable_model,
-                **({scenario.cable_model: getattr(scenario.spec.sim, scenario.cable_model).model_dump()}
-                   if scenario.cable_model in ("elastic", "sag") else {})},
+                **({} if (params := scenario.spec.sim.cable_params) is None
+                   else {scenario.cable_model: params.model_dump()})},
         "controller": {
             "output": scenario.output,
             "variant": scenario.variant,
