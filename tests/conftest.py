@@ -6,7 +6,6 @@ import contextlib
 import json
 import os
 import signal
-import socket
 import subprocess
 import sys
 import time
@@ -16,18 +15,14 @@ from pathlib import Path
 
 import pytest
 
+from cdpr.tools.launch import free_port as free_port  # the tests' free port: the launcher's
+
 CDPR = [sys.executable, "-m", "cdpr"]
 ROOT = Path(__file__).resolve().parent.parent
 DOCKER = ROOT / "docker"  # the compose files that test_compose, test_acl and test_docker run
 COMPOSE = DOCKER / "compose.yaml"
 SECURE = DOCKER / "compose.secure.yaml"
 REALTIME = DOCKER / "compose.realtime.yaml"
-
-
-def free_port() -> int:
-    with socket.socket(socket.AF_INET, socket.SOCK_STREAM) as s:
-        s.bind(("127.0.0.1", 0))
-        return int(s.getsockname()[1])
 
 
 def last_json_line(stdout: str) -> dict:

@@ -27,6 +27,7 @@ from cdpr.mechanics.catenary import (
     inextensible_catenary,
     solve_catenary,
     solve_catenary_tension,
+    unstretched_lengths,
 )
 from cdpr.mechanics.dynamics import forward_dynamics, gravity_wrench
 from cdpr.mechanics.kinematics import inverse_kinematics
@@ -37,7 +38,7 @@ from cdpr.protocol import PROTOCOL_VERSION, Command, ProtocolError
 from cdpr.protocol.session import session_info
 from cdpr_controller.core import ControllerCore, stretch_compensated_lengths
 from cdpr_sim.core import PlatformSim
-from cdpr_sim.elastic import ElasticSim, elastic_tensions, unstretched_lengths
+from cdpr_sim.elastic import ElasticSim, elastic_tensions
 from cdpr_sim.models import make_sim
 from cdpr_sim.sag import SagSim
 from cdpr_sim.winch import WinchState, drive_torque, drum_step, substeps_for

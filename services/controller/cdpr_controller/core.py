@@ -23,6 +23,7 @@ import numpy as np
 from numpy.typing import ArrayLike
 
 from cdpr.config.scenario import Scenario
+from cdpr.mechanics.catenary import unstretched_lengths
 from cdpr.mechanics.control import FeedbackLaw, Gains, Variant, controlled_rows
 from cdpr.mechanics.kinematics import WrenchMatrix, inverse_kinematics
 from cdpr.mechanics.robot import Robot
@@ -37,8 +38,7 @@ def stretch_compensated_lengths(robot: Robot, position: ArrayLike, R: ArrayLike,
 
     ``l`` is the inverse-kinematics length; the static law ``f = EA (l − l0)/l0`` solved for l0.
     """
-    lengths = inverse_kinematics(robot, position, R).lengths
-    return lengths * EA / (EA + np.asarray(tensions, dtype=float))
+    return unstretched_lengths(inverse_kinematics(robot, position, R).lengths, tensions, EA)
 
 
 @dataclass

@@ -53,7 +53,7 @@ from numpy.typing import ArrayLike
 from cdpr.config.scenario import Scenario
 from cdpr.mechanics.kinematics import cable_geometry, cable_vectors
 from cdpr.mechanics.robot import GRAVITY, Robot
-from cdpr.mechanics.rotation import Array, matrix_to_quat
+from cdpr.mechanics.rotation import Array, matrix_to_quat, readonly
 from cdpr.protocol import State
 
 _ORTHONORMAL_TOL = 1e-6  # a rotation given to the sim must satisfy ‖RᵀR − I‖∞ ≤ this, and det R > 0
@@ -78,11 +78,6 @@ def clamp_tensions(commanded: np.ndarray, tmax: float) -> tuple[np.ndarray, int,
     return np.minimum(np.maximum(f, 0.0), tmax), low, high
 
 
-def _readonly(a: Array) -> Array:
-    a.flags.writeable = False
-    return a
-
-
 @dataclass(frozen=True)
 class PlatformState:
     """The platform after ``step`` steps, world frame, twist at the centre of mass. Arrays are read-only."""
@@ -101,7 +96,7 @@ class PlatformState:
     def of(cls, step: int, t: float, position: np.ndarray, rotation: np.ndarray, twist: np.ndarray,
            lengths: np.ndarray, rates: np.ndarray, tensions: np.ndarray) -> PlatformState:
         """A state from read-only arrays (the quaternion is derived from the rotation)."""
-        return cls(step, t, position, _readonly(matrix_to_quat(rotation)), rotation, twist, lengths, rates, tensions)
+        return cls(step, t, position, readonly(matrix_to_quat(rotation)), rotation, twist, lengths, rates, tensions)
 
 
 @dataclass(frozen=True)
@@ -245,7 +240,7 @@ class PlatformSim:
         self._zero3 = np.zeros(3)
         self._platform = PlatformBody(robot, self.dt)
         self._world, self._joint, self._body = self._platform.world, self._platform.joint, self._platform.body
-        self._tensions = _readonly(np.zeros(robot.m))
+        self._tensions = readonly(np.zeros(robot.m))
         self._snap: _Snapshot | None = None
         self._reads: tuple[Array, Array, Array, Array] | None = None
         self.reset(position, rotation, twist)
@@ -271,7 +266,7 @@ class PlatformSim:
         self._world.reset()
         self._snap = self._reads = None
         self.step_count = 0
-        self._tensions = _readonly(np.zeros(self.robot.m))
+        self._tensions = readonly(np.zeros(self.robot.m))
 
     def _read_body(self) -> tuple[Array, Array, Array, Array]:
         """``(position, R, v, ω)`` of the body, read from DART at most once per step."""
@@ -286,7 +281,7 @@ class PlatformSim:
             return self._snap
         p, R, v, w = self._read_body()
         _, lengths, d, moments, rates = cable_geometry(self._a, self._b, p, R, v, w)
-        snap = _Snapshot(*(_readonly(x) for x in (p, R, np.concatenate((v, w)), lengths, d, moments, rates)))
+        snap = _Snapshot(*(readonly(x) for x in (p, R, np.concatenate((v, w)), lengths, d, moments, rates)))
         self._snap = snap
         return snap
 
@@ -336,8 +331,8 @@ class PlatformSim:
         self._world.step()  # semi-implicit Euler; clears the external force and torque afterwards
         self._snap = self._reads = None
         self.step_count += 1
-        self._tensions = _readonly(applied)
-        return StepReport(self._tensions, low, high, _readonly(damping))
+        self._tensions = readonly(applied)
+        return StepReport(self._tensions, low, high, readonly(damping))
 
 
 def planar_coordinates(p: Array, R: Array, v: Array) -> tuple[Array, Array]:

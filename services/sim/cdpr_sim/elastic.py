@@ -35,6 +35,7 @@ import numpy as np
 from numpy.typing import ArrayLike
 
 from cdpr.config.scenario import ElasticSpec
+from cdpr.mechanics.catenary import unstretched_lengths
 from cdpr.mechanics.rotation import Array
 from cdpr_sim.winch import CableForces, Geometry, WinchSim
 
@@ -51,14 +52,6 @@ def elastic_tensions(lengths: ArrayLike, rates: ArrayLike, l0: ArrayLike, l0_rat
     stretch = np.asarray(lengths, dtype=float) - l0
     f = (EA / l0) * stretch + damping * (np.asarray(rates, dtype=float) - np.asarray(l0_rates, dtype=float))
     return np.where(stretch > 0.0, np.maximum(f, 0.0), 0.0)
-
-
-def unstretched_lengths(lengths: ArrayLike, tensions: ArrayLike, EA: float) -> Array:
-    """The unstretched lengths at which cables of these lengths hold these static tensions: l·EA/(EA + f).
-
-    The inverse of the static law ``f = EA (l − l0)/l0``; for f ≥ 0 it is in (0, l].
-    """
-    return np.asarray(lengths, dtype=float) * EA / (EA + np.asarray(tensions, dtype=float))
 
 
 class ElasticSim(WinchSim):

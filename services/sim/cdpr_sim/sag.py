@@ -43,9 +43,10 @@ from cdpr.mechanics.catenary import (
     platform_forces,
     solve_catenary,
     solve_catenary_tension,
+    unstretched_lengths,
 )
 from cdpr.mechanics.rotation import Array
-from cdpr_sim.elastic import elastic_tensions, unstretched_lengths
+from cdpr_sim.elastic import elastic_tensions
 from cdpr_sim.winch import CableForces, Geometry, WinchSim
 
 

@@ -83,13 +83,12 @@ from numpy.typing import ArrayLike
 
 from cdpr.config.scenario import Scenario
 from cdpr.mechanics.robot import Robot
-from cdpr.mechanics.rotation import Array
+from cdpr.mechanics.rotation import Array, readonly
 from cdpr.protocol import State
 from cdpr_sim.core import (
     PlatformBody,
     PlatformState,
     StepReport,
-    _readonly,
     check_dt,
     clamp_tensions,
     start_pose,
@@ -154,7 +153,7 @@ class UpsSim:
             self.link_mass, np.zeros(3), np.eye(3) * 0.4 * self.link_mass * LINK_RADIUS**2
         )
         self._legs = tuple(self._make_leg(i, link_inertia) for i in range(robot.m))
-        self._tensions = _readonly(np.zeros(robot.m))
+        self._tensions = readonly(np.zeros(robot.m))
         self._snap: _Snapshot | None = None
         self.reset(position, rotation, twist)
         # The closures are made once, with every leg's end on its platform point: the constraint keeps
@@ -219,7 +218,7 @@ class UpsSim:
         self._world.reset()
         self._snap = None
         self.step_count = 0
-        self._tensions = _readonly(np.zeros(self.robot.m))
+        self._tensions = readonly(np.zeros(self.robot.m))
 
     def _platform_points_world(self) -> Array:
         tf = self._body.getTransform()
@@ -233,7 +232,7 @@ class UpsSim:
         leg_v = np.array([leg.skeleton.getVelocities() for leg in self._legs])
         twist = np.concatenate((self._body.getLinearVelocity(), self._body.getAngularVelocity()))
         snap = _Snapshot(
-            *(_readonly(x) for x in (tf.translation(), tf.rotation(), twist, legs[:, 2], leg_v[:, 2], leg_v))
+            *(readonly(x) for x in (tf.translation(), tf.rotation(), twist, legs[:, 2], leg_v[:, 2], leg_v))
         )
         self._snap = snap
         return snap
@@ -288,8 +287,8 @@ class UpsSim:
         self._world.step()  # semi-implicit Euler + closure impulses; clears forces and commands afterwards
         self._snap = None
         self.step_count += 1
-        self._tensions = _readonly(applied)
-        return StepReport(self._tensions, low, high, _readonly(damping))
+        self._tensions = readonly(applied)
+        return StepReport(self._tensions, low, high, readonly(damping))
 
 
 def _frame_with_z(z: Array) -> Array:

@@ -79,14 +79,13 @@ from cdpr.mechanics.control import COMMAND_KINDS, CommandKind
 from cdpr.mechanics.dynamics import gravity_wrench, mass_matrix
 from cdpr.mechanics.kinematics import cable_geometry, inverse_kinematics
 from cdpr.mechanics.robot import Robot
-from cdpr.mechanics.rotation import Array, cross_rows
+from cdpr.mechanics.rotation import Array, cross_rows, readonly
 from cdpr.mechanics.tda import make_tda
 from cdpr.protocol import State
 from cdpr_sim.core import (
     PlatformBody,
     PlatformState,
     StepReport,
-    _readonly,
     check_dt,
     clamp_tensions,
     start_pose,
@@ -319,8 +318,8 @@ class WinchSim(ABC):
         )
         self._l0_rate = g.rates.copy()
         self._ref: Array | None = None  # the last commanded angle (lengths mode)
-        self._tensions = _readonly(np.zeros(self.robot.m))
-        self._frame_tensions = _readonly(np.array(forces.frame))
+        self._tensions = readonly(np.zeros(self.robot.m))
+        self._frame_tensions = readonly(np.array(forces.frame))
 
     def _holding(self, g: Geometry) -> tuple[CableForces, Array]:
         """Forces and unstretched lengths that hold the platform's weight at rest at ``g``'s pose.
@@ -362,7 +361,7 @@ class WinchSim(ABC):
         v, w = self._body.getLinearVelocity(), self._body.getAngularVelocity()
         arms, lengths, d, _, rates = cable_geometry(self._a, self._b, p, R, v, w)
         points = p + arms
-        g = Geometry(*(_readonly(x) for x in (p, R, np.concatenate((v, w)), points, arms, lengths, d, rates)))
+        g = Geometry(*(readonly(x) for x in (p, R, np.concatenate((v, w)), points, arms, lengths, d, rates)))
         self._geometry = g
         return g
 
@@ -378,7 +377,7 @@ class WinchSim(ABC):
 
     def encoder_lengths(self) -> Array:
         """(m,) the unstretched lengths the winches have paid out, r θ (what drum encoders measure)."""
-        return _readonly(self.winch.radius * self._winch.angle)
+        return readonly(self.winch.radius * self._winch.angle)
 
     def load_cell_tensions(self) -> Array:
         """(m,) the tensions at the frame end over the last step (what a load cell at the winch reads)."""
@@ -411,9 +410,9 @@ class WinchSim(ABC):
         self._apply(g, forces.forces)
         r = self.winch.radius
         self._winch = WinchState(l0 / r, (l0 - r * self._winch.angle) / (self.dt * r), self._winch.integral)
-        self._tensions = _readonly(np.array(forces.platform))
-        self._frame_tensions = _readonly(np.array(forces.frame))
-        return StepReport(self._tensions, low, high, _readonly(np.zeros(self.robot.m)))
+        self._tensions = readonly(np.array(forces.platform))
+        self._frame_tensions = readonly(np.array(forces.frame))
+        return StepReport(self._tensions, low, high, readonly(np.zeros(self.robot.m)))
 
     def _step_lengths(self, commanded: Array) -> StepReport:
         if not np.all(np.isfinite(commanded)) or np.any(commanded <= 0.0):
@@ -446,6 +445,6 @@ class WinchSim(ABC):
             platform_sum += law.platform
             frame_sum += law.frame
         self._winch = s
-        self._tensions = _readonly(platform_sum / self.substeps)
-        self._frame_tensions = _readonly(frame_sum / self.substeps)
-        return StepReport(self._tensions, 0, high, _readonly(np.zeros(self.robot.m)))
+        self._tensions = readonly(platform_sum / self.substeps)
+        self._frame_tensions = readonly(frame_sum / self.substeps)
+        return StepReport(self._tensions, 0, high, readonly(np.zeros(self.robot.m)))

@@ -11,9 +11,15 @@ from pathlib import Path
 from typing import Any, TypeVar
 
 import yaml
-from pydantic import BaseModel, ValidationError
+from pydantic import BaseModel, ConfigDict, ValidationError
 
 from cdpr.errors import InputError
+
+
+class Strict(BaseModel):
+    """The base of every file's model: unknown keys are errors (a misspelt key must not pass), values frozen."""
+
+    model_config = ConfigDict(extra="forbid", frozen=True)
 
 M = TypeVar("M", bound=BaseModel)
 

@@ -11,8 +11,6 @@ from typing import Annotated, Literal
 
 import numpy as np
 from pydantic import (
-    BaseModel,
-    ConfigDict,
     Field,
     FiniteFloat,
     PositiveFloat,
@@ -20,7 +18,7 @@ from pydantic import (
     model_validator,
 )
 
-from cdpr.config.loading import parse_model, read_yaml, resolve, shipped_names
+from cdpr.config.loading import Strict, parse_model, read_yaml, resolve, shipped_names
 from cdpr.mechanics.kinematics import check_robot
 from cdpr.mechanics.robot import Mode, Robot, Shape, frozen_array
 from cdpr.mechanics.rotation import rpy_to_matrix
@@ -28,11 +26,7 @@ from cdpr.mechanics.rotation import rpy_to_matrix
 Vec3 = Annotated[list[FiniteFloat], Field(min_length=3, max_length=3)]
 
 
-class _Strict(BaseModel):
-    model_config = ConfigDict(extra="forbid", frozen=True)
-
-
-class ShapeSpec(_Strict):
+class ShapeSpec(Strict):
     type: Literal["box", "sphere", "cylinder"]
     size: list[PositiveFloat] = Field(
         description="box: [x, y, z] edge lengths; sphere: [radius]; cylinder: [radius, length along z]"
@@ -46,7 +40,7 @@ class ShapeSpec(_Strict):
         return self
 
 
-class PlatformSpec(_Strict):
+class PlatformSpec(Strict):
     mass: FiniteFloat
     inertia: list[FiniteFloat] | list[list[FiniteFloat]] = Field(
         description="principal moments [Ixx, Iyy, Izz] or a full symmetric 3×3 matrix, about the centre of mass"
@@ -75,7 +69,7 @@ class PlatformSpec(_Strict):
         return v
 
 
-class CableLimitsSpec(_Strict):
+class CableLimitsSpec(Strict):
     tmin: FiniteFloat = Field(ge=0.0, description="lowest tension a cable may be commanded, N")
     tmax: PositiveFloat = Field(description="highest tension, N")
     max_length: PositiveFloat = Field(description="longest cable length the winch holds, m")
@@ -88,22 +82,22 @@ class CableLimitsSpec(_Strict):
         return self
 
 
-class CableSpec(_Strict):
+class CableSpec(Strict):
     frame: Vec3 = Field(description="a_i, frame (world) attach point")
     platform: Vec3 = Field(description="b_i, platform attach point in the platform frame")
 
 
-class DampingSpec(_Strict):
+class DampingSpec(Strict):
     cable: FiniteFloat = Field(0.0, ge=0.0, description="viscous damping along each cable, N·s/m")
     passive: FiniteFloat = Field(0.0, ge=0.0, description="damping of the passive U and S joints, N·m·s/rad")
 
 
-class HomeSpec(_Strict):
+class HomeSpec(Strict):
     position: Vec3
     rpy: Vec3 = Field(default_factory=lambda: [0.0, 0.0, 0.0])
 
 
-class FrameBoxSpec(_Strict):
+class FrameBoxSpec(Strict):
     min: Vec3
     max: Vec3
 
@@ -114,7 +108,7 @@ class FrameBoxSpec(_Strict):
         return self
 
 
-class RobotSpec(_Strict):
+class RobotSpec(Strict):
     name: str
     description: str = ""
     source: str = Field(description="where the numbers come from")

@@ -13,8 +13,6 @@ from typing import Any, Literal
 
 import numpy as np
 from pydantic import (
-    BaseModel,
-    ConfigDict,
     Field,
     FiniteFloat,
     PositiveFloat,
@@ -22,7 +20,7 @@ from pydantic import (
     model_validator,
 )
 
-from cdpr.config.loading import parse_model, read_yaml, resolve, shipped_names
+from cdpr.config.loading import Strict, parse_model, read_yaml, resolve, shipped_names
 from cdpr.config.robot import load_robot
 from cdpr.config.trajectory import TrajectorySpec
 from cdpr.errors import InputError
@@ -32,21 +30,17 @@ from cdpr.mechanics.rotation import rpy_to_matrix
 from cdpr.mechanics.trajectory import Trajectory
 
 
-class _Strict(BaseModel):
-    model_config = ConfigDict(extra="forbid", frozen=True)
-
-
-class PlatformOverride(_Strict):
+class PlatformOverride(Strict):
     mass: PositiveFloat | None = Field(None, description="whole platform mass; inertia becomes the solid shape's")
     payload: FiniteFloat = Field(0.0, ge=0.0, description="point mass rigidly attached at the centre of mass, kg")
 
 
-class LimitsOverride(_Strict):
+class LimitsOverride(Strict):
     tmin: FiniteFloat | None = Field(None, ge=0.0)
     tmax: PositiveFloat | None = None
 
 
-class TdaSpec(_Strict):
+class TdaSpec(Strict):
     method: str = "qp"
     options: dict[str, Any] = Field(default_factory=dict)
 
@@ -63,7 +57,7 @@ class TdaSpec(_Strict):
 Gain = FiniteFloat | list[FiniteFloat]
 
 
-class ControllerSpec(_Strict):
+class ControllerSpec(Strict):
     variant: Literal["6dof", "3dof"] = "6dof"
     kp: Gain = 1500.0
     kd: Gain = 1500.0
@@ -84,7 +78,7 @@ class ControllerSpec(_Strict):
         return v
 
 
-class StretchSpec(_Strict):
+class StretchSpec(Strict):
     """The parameters every stretching cable model has (the controller's stretch compensation uses EA)."""
 
     EA: FiniteFloat = Field(1.0e6, gt=0.0, description="axial stiffness, N (k = EA / l0)")
@@ -107,7 +101,7 @@ class SagSpec(StretchSpec):
         return self.mass_per_length * float(-GRAVITY[2])
 
 
-class WinchSpec(_Strict):
+class WinchSpec(Strict):
     """The winch drives of the winch-driven cable models (cdpr_sim.winch): all winches of a robot alike, SI units,
     gains on the drum angle."""
 
@@ -123,17 +117,17 @@ class WinchSpec(_Strict):
 Bias = FiniteFloat | list[FiniteFloat]
 
 
-class EncoderSpec(_Strict):
+class EncoderSpec(Strict):
     resolution: FiniteFloat = Field(0.0, ge=0.0, description="quantisation step, m (0: none)")
     sigma: FiniteFloat = Field(0.0, ge=0.0, description="white noise, m")
 
 
-class LoadCellSpec(_Strict):
+class LoadCellSpec(Strict):
     sigma: FiniteFloat = Field(0.0, ge=0.0, description="white noise, N")
     bias: Bias = Field(0.0, description="N: one number for every cell or one per cable")
 
 
-class ImuSpec(_Strict):
+class ImuSpec(Strict):
     accel_sigma: FiniteFloat = Field(0.0, ge=0.0, description="m/s²")
     accel_bias: Bias = Field(0.0, description="m/s², body frame: one number or [x, y, z]")
     gyro_sigma: FiniteFloat = Field(0.0, ge=0.0, description="rad/s")
@@ -147,7 +141,7 @@ class ImuSpec(_Strict):
         return v
 
 
-class SensorsSpec(_Strict):
+class SensorsSpec(Strict):
     """Simulated sensors, published on sim/sensors (cdpr_sim.sensors)."""
 
     seed: int = Field(0, ge=0, description="seed of the noise (a reading is a function of seed and step)")
@@ -174,7 +168,7 @@ CABLE_MODELS: dict[str, CableModel] = {
 WINCH_MODELS = tuple(name for name, model in CABLE_MODELS.items() if model.winch)
 
 
-class SimSpec(_Strict):
+class SimSpec(Strict):
     cable_model: str = Field(
         "ideal", description="; ".join(f"{name}: {model.description}" for name, model in CABLE_MODELS.items())
     )
@@ -211,12 +205,12 @@ class SimSpec(_Strict):
         return getattr(self, self.cable_model) if self.model.params is not None else None
 
 
-class InitialSpec(_Strict):
+class InitialSpec(Strict):
     position: list[FiniteFloat] = Field(min_length=3, max_length=3)
     rpy: list[FiniteFloat] = Field(default_factory=lambda: [0.0, 0.0, 0.0], min_length=3, max_length=3)
 
 
-class ScenarioSpec(_Strict):
+class ScenarioSpec(Strict):
     name: str
     description: str = ""
     robot: str

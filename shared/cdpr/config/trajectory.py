@@ -5,9 +5,9 @@ from __future__ import annotations
 
 from typing import Annotated, Any, Literal
 
-from pydantic import BaseModel, ConfigDict, Field, FiniteFloat, RootModel, ValidationError, model_validator
+from pydantic import ConfigDict, Field, FiniteFloat, RootModel, ValidationError, model_validator
 
-from cdpr.config.loading import describe_validation_error
+from cdpr.config.loading import Strict, describe_validation_error
 from cdpr.mechanics.trajectory import QuinticWaypoints, SCurve, Trajectory
 
 # --------------------------------------------------------------------------------------------------
@@ -16,17 +16,13 @@ from cdpr.mechanics.trajectory import QuinticWaypoints, SCurve, Trajectory
 Vec3 = Annotated[list[FiniteFloat], Field(min_length=3, max_length=3)]
 
 
-class _Strict(BaseModel):
-    model_config = ConfigDict(extra="forbid", frozen=True)
-
-
-class WaypointSpec(_Strict):
+class WaypointSpec(Strict):
     t: FiniteFloat = Field(description="time, s")
     position: Vec3 = Field(description="centre-of-mass position, world frame, m")
     rpy: Vec3 | None = Field(None, description="roll, pitch, yaw (rad); omitted: the previous waypoint's")
 
 
-class QuinticSpec(_Strict):
+class QuinticSpec(Strict):
     """``type: quintic``: rest-to-rest quintic segments through ``waypoints``."""
 
     type: Literal["quintic"]
@@ -49,7 +45,7 @@ class QuinticSpec(_Strict):
         return QuinticWaypoints([w.t for w in self.waypoints], [w.position for w in self.waypoints], rpys)
 
 
-class SCurveSpec(_Strict):
+class SCurveSpec(Strict):
     """``type: scurve``: lift, travel, lower (see :class:`SCurve`)."""
 
     type: Literal["scurve"]

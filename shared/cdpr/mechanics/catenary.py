@@ -101,6 +101,14 @@ class CatenaryForces:
         return np.hypot(self.horizontal, self.vertical_frame)
 
 
+def unstretched_lengths(lengths: ArrayLike, tensions: ArrayLike, EA: float) -> Array:
+    """The unstretched lengths at which cables of these lengths hold these static tensions: l·EA/(EA + f).
+
+    The inverse of the straight elastic cable's static law ``f = EA (l − l0)/l0``; for f ≥ 0 it is in (0, l].
+    """
+    return np.asarray(lengths, dtype=float) * EA / (EA + np.asarray(tensions, dtype=float))
+
+
 def _arrays(*values: ArrayLike) -> list[Array]:
     arrays = np.broadcast_arrays(*(np.atleast_1d(np.asarray(v, dtype=float)) for v in values))
     return [np.array(a, dtype=float) for a in arrays]

@@ -27,7 +27,7 @@ from numpy.typing import ArrayLike
 
 from cdpr.mechanics.dynamics import required_wrench
 from cdpr.mechanics.robot import GRAVITY, Robot
-from cdpr.mechanics.rotation import Array, orientation_error
+from cdpr.mechanics.rotation import Array, orientation_error, quat_matrix
 
 Variant = Literal["6dof", "3dof"]
 # What a controller commands each step: cable tensions (N), or unstretched cable lengths (m) for winch-driven
@@ -149,13 +149,7 @@ class FeedbackLaw:
             a + p * e + d * (vd - v)
             for a, p, e, d, vd, v in zip(accel_d, kp, error, kd, twist_d, twist, strict=True)
         ]
-        R = np.array(
-            [
-                [1.0 - 2.0 * (qy * qy + qz * qz), 2.0 * (qx * qy - qz * qw), 2.0 * (qx * qz + qy * qw)],
-                [2.0 * (qx * qy + qz * qw), 1.0 - 2.0 * (qx * qx + qz * qz), 2.0 * (qy * qz - qx * qw)],
-                [2.0 * (qx * qz - qy * qw), 2.0 * (qy * qz + qx * qw), 1.0 - 2.0 * (qx * qx + qy * qy)],
-            ]
-        )
+        R = quat_matrix(qx, qy, qz, qw)
         m, (gx, gy, gz) = self.mass, self.weight
         force = [m * acc[0] - gx, m * acc[1] - gy, m * acc[2] - gz]
         if self.point_mass:

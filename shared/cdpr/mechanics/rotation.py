@@ -6,12 +6,19 @@ Pure numpy, no I/O. Roll-pitch-yaw is the ROS/URDF convention: R = Rz(yaw) · Ry
 from __future__ import annotations
 
 import math
+from typing import Any
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 Array = NDArray[np.float64]
 BoolArray = NDArray[np.bool_]  # masks
+
+
+def readonly(a: Array) -> Array:
+    """``a`` itself, made read-only (a value handed out that nobody may change in place)."""
+    a.flags.writeable = False
+    return a
 
 
 def skew(v: ArrayLike) -> Array:
@@ -80,9 +87,9 @@ def matrix_to_quat(R: ArrayLike) -> Array:
     return np.array((x / n, y / n, z / n, w / n))
 
 
-def quat_to_matrix(q: ArrayLike) -> Array:
-    """Unit quaternion [qx, qy, qz, qw] → rotation matrix (the quaternion is normalised first)."""
-    x, y, z, w = np.asarray(q, dtype=float) / np.linalg.norm(q)
+def quat_matrix(x: Any, y: Any, z: Any, w: Any) -> Array:
+    """The rotation matrix of the unit quaternion [x, y, z, w] (not normalised here): floats give (3, 3); arrays
+    of one shape S give (3, 3, *S)."""
     return np.array(
         [
             [1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w)],
@@ -90,6 +97,11 @@ def quat_to_matrix(q: ArrayLike) -> Array:
             [2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)],
         ]
     )
+
+
+def quat_to_matrix(q: ArrayLike) -> Array:
+    """Unit quaternion [qx, qy, qz, qw] → rotation matrix (the quaternion is normalised first)."""
+    return quat_matrix(*(np.asarray(q, dtype=float) / np.linalg.norm(q)))
 
 
 def rotvec_to_matrix(v: ArrayLike) -> Array:

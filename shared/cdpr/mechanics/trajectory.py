@@ -53,7 +53,7 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import ArrayLike
 
-from cdpr.mechanics.rotation import Array, matrix_to_quat, matrix_to_rotvec, rpy_to_matrix, skew
+from cdpr.mechanics.rotation import Array, matrix_to_quat, matrix_to_rotvec, readonly, rpy_to_matrix, skew
 
 __all__ = [
     "QuinticWaypoints",
@@ -61,11 +61,6 @@ __all__ = [
     "Setpoint",
     "Trajectory",
 ]
-
-
-def _readonly(a: Array) -> Array:
-    a.flags.writeable = False
-    return a
 
 
 @dataclass(frozen=True, eq=False)
@@ -86,10 +81,10 @@ class Setpoint:
 def _hold(position: Array, rotation: Array) -> Setpoint:
     """A resting setpoint: the pose with zero twist and acceleration."""
     return Setpoint(
-        _readonly(np.array(position, dtype=float)),
-        _readonly(np.array(rotation, dtype=float)),
-        _readonly(np.zeros(6)),
-        _readonly(np.zeros(6)),
+        readonly(np.array(position, dtype=float)),
+        readonly(np.array(rotation, dtype=float)),
+        readonly(np.zeros(6)),
+        readonly(np.zeros(6)),
     )
 
 
@@ -225,7 +220,7 @@ class QuinticWaypoints(Trajectory):
         accel = np.empty(6)
         accel[:3] = dds * dx
         accel[3:] = dds * self._axis_world[i]
-        return Setpoint(_readonly(position), _readonly(rotation), _readonly(twist), _readonly(accel))
+        return Setpoint(readonly(position), readonly(rotation), readonly(twist), readonly(accel))
 
 
 def _rotations(rpys: Array) -> Array:

@@ -25,7 +25,7 @@ from numpy.typing import ArrayLike, NDArray
 
 from cdpr.errors import InputError
 from cdpr.mechanics.robot import Robot
-from cdpr.mechanics.rotation import matrix_to_quat
+from cdpr.mechanics.rotation import matrix_to_quat, quat_matrix
 
 APP_ID = "cdpr"
 RECORDING_ID_ENV = "CDPR_RECORDING_ID"  # forces the recording id (e.g. to merge several recorders)
@@ -125,15 +125,7 @@ def cable_strips(robot: Robot, positions: ArrayLike, quaternions: ArrayLike) -> 
     p = np.asarray(positions, dtype=float).reshape(-1, 3)
     q = np.asarray(quaternions, dtype=float).reshape(-1, 4)
     q = q / np.linalg.norm(q, axis=1, keepdims=True)
-    x, y, z, w = q.T
-    R = np.stack(
-        [
-            np.stack([1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w)], axis=-1),
-            np.stack([2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w)], axis=-1),
-            np.stack([2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)], axis=-1),
-        ],
-        axis=1,
-    )  # (n, 3, 3)
+    R = np.moveaxis(quat_matrix(*q.T), -1, 0)  # (n, 3, 3)
     b_world = p[:, None, :] + np.einsum("nij,mj->nmi", R, robot.platform_points)
     a = np.broadcast_to(robot.frame_points, b_world.shape)
     return np.stack([b_world, a], axis=2)

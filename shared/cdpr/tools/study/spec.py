@@ -26,9 +26,9 @@ import re
 from pathlib import Path
 from typing import Any, Literal
 
-from pydantic import BaseModel, ConfigDict, Field, FiniteFloat, PositiveFloat, PositiveInt, model_validator
+from pydantic import Field, FiniteFloat, PositiveFloat, PositiveInt, model_validator
 
-from cdpr.config.loading import parse_model, read_yaml
+from cdpr.config.loading import Strict, parse_model, read_yaml
 from cdpr.errors import InputError
 
 # Metrics a point can keep: the numeric keys of a session's summary (cdpr.tools.launch, cdpr.tools.metrics) ...
@@ -63,17 +63,13 @@ PATH_RE = re.compile(r"^[A-Za-z_][A-Za-z0-9_]*(\.([A-Za-z_][A-Za-z0-9_]*|\d+|\*)
 NAME_RE = re.compile(r"^[A-Za-z0-9_][A-Za-z0-9_.-]{0,63}$")
 
 
-class _Strict(BaseModel):
-    model_config = ConfigDict(extra="forbid", frozen=True)
-
-
 def _known_metric(name: str) -> str:
     if name not in METRICS:
         raise ValueError(f"unknown metric {name!r} (known: {', '.join(METRICS)})")
     return name
 
 
-class ParameterSpec(_Strict):
+class ParameterSpec(Strict):
     """One varied quantity: where (``path``), how (``op``) and which values (one law)."""
 
     path: str = Field(description="dotted path into the scenario, or robot.<path> into its robot file")
@@ -135,7 +131,7 @@ class ParameterSpec(_Strict):
         return self.path.startswith("robot.")
 
 
-class ConstraintSpec(_Strict):
+class ConstraintSpec(Strict):
     metric: str
     max: FiniteFloat | None = None
     min: FiniteFloat | None = None
@@ -148,7 +144,7 @@ class ConstraintSpec(_Strict):
         return self
 
 
-class TuneSpec(_Strict):
+class TuneSpec(Strict):
     """``cdpr tune``: Optuna (TPE) through Ray Tune searches the parameters' laws for the best metric."""
 
     metric: str = "rms_position_error"
@@ -174,7 +170,7 @@ class TuneSpec(_Strict):
         return self
 
 
-class StudySpec(_Strict):
+class StudySpec(Strict):
     name: str
     description: str = ""
     scenario: str = Field(description="the base scenario: a shipped name or a path (relative to the study file)")
