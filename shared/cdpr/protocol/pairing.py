@@ -8,7 +8,7 @@ clock's resend) is answered again; a setpoint block never makes an answered step
 
 from __future__ import annotations
 
-from cdpr.protocol import Setpoint, Setpoints, State
+from cdpr.protocol.messages import Setpoint, Setpoints, State
 
 
 class Pairing:

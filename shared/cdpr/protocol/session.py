@@ -18,7 +18,7 @@ from cdpr.errors import InputError
 from cdpr.mechanics.control import Gains, Variant, controlled_rows
 from cdpr.mechanics.kinematics import check_robot
 from cdpr.mechanics.robot import Robot, Shape
-from cdpr.protocol import PROTOCOL_VERSION, ProtocolError, unpack
+from cdpr.protocol.messages import PROTOCOL_VERSION, ProtocolError, unpack
 
 if TYPE_CHECKING:
     from cdpr.config.scenario import Scenario

@@ -35,7 +35,7 @@ from numpy.typing import ArrayLike, NDArray
 
 from cdpr.errors import InputError
 from cdpr.mechanics.robot import Robot
-from cdpr.recording import anchor_labels, cable_strips, tension_colors
+from cdpr.recording.scene import anchor_labels, cable_strips, tension_colors
 
 if TYPE_CHECKING:
     import foxglove

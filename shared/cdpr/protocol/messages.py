@@ -1,0 +1,602 @@
+"""The wire protocol: every key expression and every message of a session, in one place.
+
+Documented for people in ``docs/protocol.md``; keep the two in step (a test checks the key table).
+
+Payloads are msgpack maps with string keys. Every message carries the protocol version ``v``, and
+every step-stamped message the step number ``step`` (int ≥ 0) and the sim time ``t`` (s, = step·dt).
+Decoding validates type, length and finiteness and raises :class:`ProtocolError` with a one-line message
+that names the field; services log it, count it, and drop (or clamp, for tensions) as documented.
+"""
+
+from __future__ import annotations
+
+import math
+import re
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+from typing import Any, Literal, get_args
+
+import msgpack
+
+from cdpr.mechanics.control import COMMAND_KINDS, CommandKind
+from cdpr.protocol.wiring import TOPICS, WIRING
+
+PROTOCOL_VERSION = 2  # 2: ticks grant windows; setpoints and telemetry travel in blocks
+SESSION_RE = re.compile(r"^[A-Za-z0-9_-]{1,64}$")
+
+# Service names that can hold a liveliness token `cdpr/{session}/alive/{name}`: the nodes of the wiring table.
+SERVICES = tuple(WIRING)
+
+
+class ProtocolError(ValueError):
+    """A payload that does not follow the protocol; the message names the offending field."""
+
+
+def check_session(session: str) -> str:
+    if not SESSION_RE.match(session):
+        raise ValueError(f"session id {session!r} must be 1-64 characters of A-Z a-z 0-9 _ -")
+    return session
+
+
+@dataclass(frozen=True)
+class Keys:
+    """Key expressions of one session, ``cdpr/{session}/...``."""
+
+    session: str = "default"
+    prefix: str = field(init=False)
+
+    def __post_init__(self) -> None:
+        check_session(self.session)
+        object.__setattr__(self, "prefix", f"cdpr/{self.session}")
+
+    def __getattr__(self, name: str) -> str:
+        """``keys.tick``, ``keys.state``, …: the key of each topic of :data:`cdpr.protocol.wiring.TOPICS` that
+        has one key per session (``stats`` and ``alive`` have one per node: :meth:`stats`, :meth:`alive`)."""
+        topic = TOPICS.get(name)
+        if topic is None or "{" in topic.key or "prefix" not in self.__dict__:
+            raise AttributeError(f"{type(self).__name__!r} object has no attribute {name!r}")
+        return f"{self.prefix}/{topic.key}"
+
+    def stats(self, service: str) -> str:
+        return f"{self.prefix}/stats/{service}"
+
+    @property
+    def stats_all(self) -> str:
+        return f"{self.prefix}/stats/*"
+
+    def alive(self, service: str) -> str:
+        return f"{self.prefix}/alive/{service}"
+
+    @property
+    def alive_all(self) -> str:
+        return f"{self.prefix}/alive/*"
+
+    def topic(self, name: str, publisher: str | None = None) -> str:
+        """The key of topic ``name`` (a :data:`cdpr.protocol.wiring.TOPICS` name): ``stats`` is
+        ``stats/{publisher}`` to publish on, ``stats/*`` to subscribe to."""
+        if name == "stats":
+            return self.stats_all if publisher is None else self.stats(publisher)
+        if name == "alive":
+            return self.alive_all if publisher is None else self.alive(publisher)
+        return str(getattr(self, name))
+
+    def table(self) -> dict[str, str]:
+        """Topic name → key expression (``{service}`` where a node's name goes), for documentation and tests."""
+        return {name: f"{self.prefix}/{t.key.replace('{node}', '{service}')}" for name, t in TOPICS.items()}
+
+
+# --------------------------------------------------------------------------------------------------
+# Field checks. Each returns the cleaned value or raises ProtocolError naming the field.
+
+
+def _field(msg: dict[Any, Any], name: str) -> Any:
+    if name not in msg:
+        raise ProtocolError(f"{name}: missing")
+    return msg[name]
+
+
+def _int(msg: dict[Any, Any], name: str, minimum: int = 0) -> int:
+    value = _field(msg, name)
+    if isinstance(value, bool) or not isinstance(value, int):
+        raise ProtocolError(f"{name}: expected an integer, got {type(value).__name__}")
+    if value < minimum:
+        raise ProtocolError(f"{name}: must be >= {minimum}, got {value}")
+    return value
+
+
+def _float(msg: dict[Any, Any], name: str) -> float:
+    value = _field(msg, name)
+    if isinstance(value, bool) or not isinstance(value, (int, float)):
+        raise ProtocolError(f"{name}: expected a number, got {type(value).__name__}")
+    value = float(value)
+    if not math.isfinite(value):
+        raise ProtocolError(f"{name}: must be finite, got {value}")
+    return value
+
+
+_FLOAT = frozenset({float})
+
+
+def _vector(msg: dict[Any, Any], name: str, length: int | None) -> tuple[float, ...]:
+    value = _field(msg, name)
+    # Fast path for what every well-behaved sender sends: a list of finite floats (a NaN or an
+    # infinity makes the sum non-finite; so may an overflow, which the full check below then clears).
+    if (
+        type(value) is list
+        and (length is None or len(value) == length)
+        and _FLOAT.issuperset(map(type, value))
+        and math.isfinite(sum(value))
+    ):
+        return tuple(value)
+    if not isinstance(value, (list, tuple)):
+        raise ProtocolError(f"{name}: expected an array of numbers, got {type(value).__name__}")
+    if length is not None and len(value) != length:
+        raise ProtocolError(f"{name}: expected {length} numbers, got {len(value)}")
+    out = []
+    for i, x in enumerate(value):
+        if isinstance(x, bool) or not isinstance(x, (int, float)):
+            raise ProtocolError(f"{name}[{i}]: expected a number, got {type(x).__name__}")
+        x = float(x)
+        if not math.isfinite(x):
+            raise ProtocolError(f"{name}[{i}]: must be finite, got {x}")
+        out.append(x)
+    return tuple(out)
+
+
+def unpack(payload: bytes | bytearray | memoryview) -> dict[Any, Any]:
+    """msgpack bytes → map, checking the protocol version."""
+    try:
+        msg = msgpack.unpackb(bytes(payload), raw=False, strict_map_key=False)
+    except Exception as exc:  # msgpack raises several unrelated types for garbage
+        raise ProtocolError(f"payload: not valid msgpack ({type(exc).__name__})") from None
+    if not isinstance(msg, dict):
+        raise ProtocolError(f"payload: expected a msgpack map, got {type(msg).__name__}")
+    v = _field(msg, "v")
+    if v != PROTOCOL_VERSION:
+        raise ProtocolError(f"v: unsupported protocol version {v!r} (this is version {PROTOCOL_VERSION})")
+    return msg
+
+
+def pack(msg: dict[str, Any]) -> bytes:
+    return msgpack.packb({"v": PROTOCOL_VERSION, **msg}, use_bin_type=True)
+
+
+def _floats(values: Sequence[float]) -> list[float]:
+    return list(map(float, values))
+
+
+def _flat(rows: Sequence[Sequence[float]]) -> list[float]:
+    return [float(x) for row in rows for x in row]
+
+
+def _ints(msg: dict[Any, Any], name: str, length: int | None = None) -> list[int]:
+    value = _field(msg, name)
+    if not isinstance(value, list) or any(isinstance(x, bool) or not isinstance(x, int) or x < 0 for x in value):
+        raise ProtocolError(f"{name}: expected an array of integers >= 0")
+    if length is not None and len(value) != length:
+        raise ProtocolError(f"{name}: expected {length} integers, got {len(value)}")
+    return value
+
+
+def _rows(msg: dict[Any, Any], name: str, n: int, width: int | None) -> list[tuple[float, ...]]:
+    """``n`` rows of ``width`` numbers from the flat array ``name`` (``width`` None: n rows of equal width)."""
+    flat = _vector(msg, name, None if width is None else n * width)
+    if width is None:
+        if n == 0 or len(flat) % n:
+            raise ProtocolError(f"{name}: expected {n} rows of equal length, got {len(flat)} numbers")
+        width = len(flat) // n
+    return [flat[i * width:(i + 1) * width] for i in range(n)]
+
+
+# --------------------------------------------------------------------------------------------------
+# Messages
+
+
+@dataclass(frozen=True, slots=True)
+class Tick:
+    """``clock/tick``: steps ``step`` … ``until`` (times ``t`` … ``until·dt``) may be computed.
+
+    In fast mode a tick grants a window of steps; in realtime mode one step, at its deadline. ``resend``:
+    the clock saw no progress (or a participant came back) and asks for the current state and the
+    setpoints again, ``step`` then being the sim's current step. ``flush``: the clock will grant nothing
+    more until it hears of progress, so the sim sends its telemetry once it has computed ``until``.
+    """
+
+    step: int
+    t: float
+    until: int = -1  # the last step granted (-1: ``step``)
+    resend: bool = False
+    flush: bool = False
+
+    def __post_init__(self) -> None:
+        if self.until < self.step:
+            object.__setattr__(self, "until", self.step)
+
+    def encode(self) -> bytes:
+        return pack({"step": self.step, "t": self.t, "until": self.until, "resend": self.resend,
+                     "flush": self.flush})
+
+    @classmethod
+    def decode(cls, payload: bytes) -> Tick:
+        msg = unpack(payload)
+        step = _int(msg, "step")
+        until = _int(msg, "until") if "until" in msg else step
+        if until < step:
+            raise ProtocolError(f"until: must be >= step ({step}), got {until}")
+        resend, flush = msg.get("resend", False), msg.get("flush", False)
+        if not isinstance(resend, bool) or not isinstance(flush, bool):
+            raise ProtocolError("resend, flush: expected true/false")
+        return cls(step, _float(msg, "t"), until, resend, flush)
+
+
+@dataclass(frozen=True, slots=True)
+class State:
+    """``sim/state``: the platform at step ``step`` and what acted on it during the previous step."""
+
+    step: int
+    t: float
+    pose: tuple[float, ...]  # x, y, z, qx, qy, qz, qw (centre of mass, world frame)
+    twist: tuple[float, ...]  # vx, vy, vz, wx, wy, wz (world frame)
+    cable_lengths: tuple[float, ...]
+    tensions: tuple[float, ...]  # as applied over [t - dt, t] (zeros at step 0)
+    clamped: int = 0  # commands clamped by the sim so far (optional on the wire, default 0)
+
+    def encode(self) -> bytes:
+        return pack(
+            {
+                "step": self.step,
+                "t": self.t,
+                "pose": _floats(self.pose),
+                "twist": _floats(self.twist),
+                "cable_lengths": _floats(self.cable_lengths),
+                "tensions": _floats(self.tensions),
+                "clamped": self.clamped,
+            }
+        )
+
+    @classmethod
+    def decode(cls, payload: bytes, cables: int | None = None) -> State:
+        msg = unpack(payload)
+        lengths = _vector(msg, "cable_lengths", cables)
+        return cls(
+            _int(msg, "step"),
+            _float(msg, "t"),
+            _vector(msg, "pose", 7),
+            _vector(msg, "twist", 6),
+            lengths,
+            _vector(msg, "tensions", len(lengths)),
+            _int(msg, "clamped") if "clamped" in msg else 0,
+        )
+
+
+@dataclass(frozen=True, slots=True)
+class Setpoint:
+    """``trajectory/setpoint``: the desired pose, twist and acceleration at step ``step``."""
+
+    step: int
+    t: float
+    pose: tuple[float, ...]
+    twist: tuple[float, ...]
+    accel: tuple[float, ...]
+
+    def encode(self) -> bytes:
+        return pack(
+            {
+                "step": self.step,
+                "t": self.t,
+                "pose": _floats(self.pose),
+                "twist": _floats(self.twist),
+                "accel": _floats(self.accel),
+            }
+        )
+
+    @classmethod
+    def decode(cls, payload: bytes) -> Setpoint:
+        msg = unpack(payload)
+        return cls(
+            _int(msg, "step"),
+            _float(msg, "t"),
+            _vector(msg, "pose", 7),
+            _vector(msg, "twist", 6),
+            _vector(msg, "accel", 6),
+        )
+
+
+@dataclass(frozen=True, slots=True)
+class Command:
+    """``controller/command``: the cable tensions (N) — or the unstretched cable lengths (m) — to apply
+    over [t_k, t_k + dt].
+
+    Exactly one of ``tensions`` and ``lengths`` is on the wire. ``tensions`` must be finite; the sim
+    clamps each to [0, tmax] (a cable only pulls) and counts the clamps. ``lengths`` (a session whose
+    scenario has ``controller.output: lengths``: winch-driven cables) must be finite and > 0; in a
+    Python ``Command`` of lengths, ``tensions`` is ``()``. Optional ``feasible``/``status`` report the
+    controller's tension distribution outcome.
+    """
+
+    step: int
+    t: float
+    tensions: tuple[float, ...]
+    feasible: bool = True
+    status: str = "ok"
+    lengths: tuple[float, ...] | None = None
+    solve_time: float | None = None  # s the controller spent on this step (optional)
+
+    @property
+    def kind(self) -> CommandKind:
+        """``"lengths"`` or ``"tensions"``: which command this is."""
+        return "tensions" if self.lengths is None else "lengths"
+
+    @property
+    def values(self) -> tuple[float, ...]:
+        """The commanded numbers, tensions or lengths."""
+        return self.tensions if self.lengths is None else self.lengths
+
+    def encode(self) -> bytes:
+        return pack(
+            {
+                "step": self.step,
+                "t": self.t,
+                self.kind: _floats(self.values),
+                "feasible": bool(self.feasible),
+                "status": self.status,
+                **({} if self.solve_time is None else {"solve_time": float(self.solve_time)}),
+            }
+        )
+
+    @classmethod
+    def decode(cls, payload: bytes, cables: int | None = None, expect: CommandKind | None = None) -> Command:
+        """``expect`` (``"tensions"`` or ``"lengths"``): the kind the receiver takes (the other: an error)."""
+        msg = unpack(payload)
+        feasible = msg.get("feasible", True)
+        status = msg.get("status", "ok")
+        if not isinstance(feasible, bool):
+            raise ProtocolError(f"feasible: expected true/false, got {type(feasible).__name__}")
+        if not isinstance(status, str):
+            raise ProtocolError(f"status: expected a string, got {type(status).__name__}")
+        step, t = _int(msg, "step"), _float(msg, "t")
+        solve_time = _float(msg, "solve_time") if "solve_time" in msg else None
+        if "lengths" not in msg:
+            if expect == "lengths":
+                raise ProtocolError("lengths: missing (this session's controller commands cable lengths)")
+            return cls(step, t, _vector(msg, "tensions", cables), feasible, status, None, solve_time)
+        if "tensions" in msg:
+            raise ProtocolError("lengths: a command carries tensions or lengths, not both")
+        if expect == "tensions":
+            raise ProtocolError("lengths: this session's controller commands tensions, not lengths")
+        lengths = _vector(msg, "lengths", cables)
+        for i, x in enumerate(lengths):
+            if x <= 0.0:
+                raise ProtocolError(f"lengths[{i}]: must be > 0, got {x}")
+        return cls(step, t, (), feasible, status, lengths, solve_time)
+
+
+@dataclass(frozen=True, slots=True)
+class Sensors:
+    """``sim/sensors``: what the simulated sensors read at step ``step`` (noisy, biased, quantised).
+
+    ``encoders`` (m, m): the cable lengths the winch encoders measure; ``load_cells`` (m, N): the cable
+    tensions at the winches; ``accel`` (m/s²) and ``gyro`` (rad/s): the platform IMU's specific force
+    (acceleration minus gravity: +9.81 up at rest) and angular velocity, both in the platform frame.
+    The ground truth stays in ``sim/state``.
+    """
+
+    step: int
+    t: float
+    encoders: tuple[float, ...]
+    load_cells: tuple[float, ...]
+    accel: tuple[float, ...]
+    gyro: tuple[float, ...]
+
+    def encode(self) -> bytes:
+        return pack(
+            {
+                "step": self.step,
+                "t": self.t,
+                "encoders": _floats(self.encoders),
+                "load_cells": _floats(self.load_cells),
+                "accel": _floats(self.accel),
+                "gyro": _floats(self.gyro),
+            }
+        )
+
+    @classmethod
+    def decode(cls, payload: bytes, cables: int | None = None) -> Sensors:
+        msg = unpack(payload)
+        encoders = _vector(msg, "encoders", cables)
+        return cls(
+            _int(msg, "step"),
+            _float(msg, "t"),
+            encoders,
+            _vector(msg, "load_cells", len(encoders)),
+            _vector(msg, "accel", 3),
+            _vector(msg, "gyro", 3),
+        )
+
+
+@dataclass(frozen=True, slots=True)
+class Setpoints:
+    """``trajectory/setpoints``: consecutive setpoints ``first`` … ``first + len − 1`` in one message.
+
+    On the wire the columns are flat arrays: ``t`` (n), ``pose`` (7n), ``twist`` (6n), ``accel`` (6n).
+    """
+
+    items: tuple[Setpoint, ...]
+
+    def encode(self) -> bytes:
+        s = self.items
+        return pack({"first": s[0].step if s else 0, "t": [x.t for x in s], "pose": _flat([x.pose for x in s]),
+                     "twist": _flat([x.twist for x in s]), "accel": _flat([x.accel for x in s])})
+
+    @classmethod
+    def decode(cls, payload: bytes) -> Setpoints:
+        msg = unpack(payload)
+        first = _int(msg, "first")
+        t = _vector(msg, "t", None)
+        n = len(t)
+        pose, twist, accel = _rows(msg, "pose", n, 7), _rows(msg, "twist", n, 6), _rows(msg, "accel", n, 6)
+        return cls(tuple(Setpoint(first + i, t[i], pose[i], twist[i], accel[i]) for i in range(n)))
+
+
+@dataclass(frozen=True, slots=True)
+class Telemetry:
+    """``sim/telemetry``: what the sim did over a block of steps, for the clock, recorders and monitors.
+
+    ``states``: the states the sim published on ``sim/state`` since the last block (every one, in step
+    order; a block sent on request may repeat the current one); ``commands``: the commands it applied
+    over the same steps (the first valid one of each step), each with ``lags[i]``, the seconds from the
+    step's state going out to the start of its integration (the controller's answer time plus any wait
+    for the clock's grant), and the controller's ``solve_time`` when it sent one; ``sensors``: the
+    sensor readings taken with the states (empty without sensors). On the wire every column is a flat
+    array (see docs/protocol.md).
+    """
+
+    states: tuple[State, ...]
+    commands: tuple[Command, ...] = ()
+    lags: tuple[float, ...] = ()
+    sensors: tuple[Sensors, ...] = ()
+
+    def encode(self) -> bytes:
+        s, c, r = self.states, self.commands, self.sensors
+        kind = c[0].kind if c else "tensions"
+        msg: dict[str, Any] = {
+            "step": [x.step for x in s], "t": [x.t for x in s], "pose": _flat([x.pose for x in s]),
+            "twist": _flat([x.twist for x in s]), "cable_lengths": _flat([x.cable_lengths for x in s]),
+            "tensions": _flat([x.tensions for x in s]), "clamped": [x.clamped for x in s],
+            "command": {
+                "step": [x.step for x in c], "t": [x.t for x in c], "kind": kind,
+                "values": _flat([x.values for x in c]),
+                "feasible": [bool(x.feasible) for x in c], "status": [x.status for x in c],
+                "solve_time": [-1.0 if x.solve_time is None else float(x.solve_time) for x in c],
+                "lag": _floats(self.lags),
+            },
+        }
+        if r:
+            msg["sensors"] = {
+                "step": [x.step for x in r], "t": [x.t for x in r], "encoders": _flat([x.encoders for x in r]),
+                "load_cells": _flat([x.load_cells for x in r]), "accel": _flat([x.accel for x in r]),
+                "gyro": _flat([x.gyro for x in r]),
+            }
+        return pack(msg)
+
+    @classmethod
+    def decode(cls, payload: bytes, cables: int | None = None) -> Telemetry:
+        msg = unpack(payload)
+        steps = _ints(msg, "step")
+        n = len(steps)
+        t = _vector(msg, "t", n)
+        lengths = _rows(msg, "cable_lengths", n, cables) if n else []
+        m = len(lengths[0]) if lengths else (cables or 0)
+        pose, twist, tensions = _rows(msg, "pose", n, 7), _rows(msg, "twist", n, 6), _rows(msg, "tensions", n, m)
+        clamped = _ints(msg, "clamped", n)
+        states = tuple(State(steps[i], t[i], pose[i], twist[i], lengths[i], tensions[i], clamped[i]) for i in range(n))
+        c = _field(msg, "command")
+        if not isinstance(c, dict):
+            raise ProtocolError("command: expected a map")
+        c_steps = _ints(c, "step")
+        k = len(c_steps)
+        c_t = _vector(c, "t", k)
+        kind = _field(c, "kind")
+        if kind not in COMMAND_KINDS:
+            raise ProtocolError(f"command.kind: expected {' or '.join(COMMAND_KINDS)}, got {kind!r}")
+        values = _rows(c, "values", k, m) if k else []
+        feasible, status = _field(c, "feasible"), _field(c, "status")
+        if not isinstance(feasible, list) or len(feasible) != k or not all(isinstance(x, bool) for x in feasible):
+            raise ProtocolError(f"command.feasible: expected {k} true/false values")
+        if not isinstance(status, list) or len(status) != k or not all(isinstance(x, str) for x in status):
+            raise ProtocolError(f"command.status: expected {k} strings")
+        solve, lags = _vector(c, "solve_time", k), _vector(c, "lag", k)
+        commands = tuple(
+            Command(c_steps[i], c_t[i], values[i] if kind == "tensions" else (), feasible[i], status[i],
+                    values[i] if kind == "lengths" else None, solve[i] if solve[i] >= 0.0 else None)
+            for i in range(k)
+        )
+        sensors: tuple[Sensors, ...] = ()
+        if "sensors" in msg:
+            r = msg["sensors"]
+            if not isinstance(r, dict):
+                raise ProtocolError("sensors: expected a map")
+            r_steps = _ints(r, "step")
+            j = len(r_steps)
+            r_t = _vector(r, "t", j)
+            enc, cells = _rows(r, "encoders", j, m), _rows(r, "load_cells", j, m)
+            acc, gyro = _rows(r, "accel", j, 3), _rows(r, "gyro", j, 3)
+            sensors = tuple(Sensors(r_steps[i], r_t[i], enc[i], cells[i], acc[i], gyro[i]) for i in range(j))
+        return cls(states, commands, lags, sensors)
+
+
+@dataclass(frozen=True, slots=True)
+class ServiceStats:
+    """``stats/{service}``: a service's fault counters (dropped, clamped, … messages), about once a second
+    while they change and once when the service stops. The clock gathers them into its status."""
+
+    service: str
+    counters: dict[str, int]
+
+    def encode(self) -> bytes:
+        return pack({"service": self.service, "counters": dict(self.counters)})
+
+    @classmethod
+    def decode(cls, payload: bytes) -> ServiceStats:
+        msg = unpack(payload)
+        service = _field(msg, "service")
+        if not isinstance(service, str) or service not in SERVICES:
+            raise ProtocolError(f"service: expected one of {', '.join(SERVICES)}, got {service!r}")
+        counters = _field(msg, "counters")
+        if not isinstance(counters, dict) or not all(
+            isinstance(k, str) and isinstance(v, int) and not isinstance(v, bool) and v >= 0
+            for k, v in counters.items()
+        ):
+            raise ProtocolError("counters: expected a map of names to non-negative integers")
+        return cls(service, counters)
+
+
+ClockState = Literal["waiting", "running", "paused", "finished", "aborted"]
+CLOCK_STATES: tuple[ClockState, ...] = get_args(ClockState)
+
+
+@dataclass(frozen=True, slots=True)
+class Status:
+    """``clock/status``: the session's state, published on every change and about once a second.
+
+    ``state`` is one of waiting | running | paused | finished | aborted; ``missing`` lists the expected
+    participants without a liveliness token; ``stats`` holds the clock's counters (documented).
+    """
+
+    state: ClockState
+    step: int
+    t: float
+    total_steps: int
+    missing: tuple[str, ...] = ()
+    reason: str = ""
+    stats: dict[str, Any] = field(default_factory=dict)
+
+    def encode(self) -> bytes:
+        return pack(
+            {
+                "state": self.state,
+                "step": self.step,
+                "t": self.t,
+                "total_steps": self.total_steps,
+                "missing": list(self.missing),
+                "reason": self.reason,
+                "stats": self.stats,
+            }
+        )
+
+    @classmethod
+    def decode(cls, payload: bytes) -> Status:
+        msg = unpack(payload)
+        state = _field(msg, "state")
+        if state not in CLOCK_STATES:
+            raise ProtocolError(f"state: expected one of {', '.join(CLOCK_STATES)}, got {state!r}")
+        missing = msg.get("missing", [])
+        if not isinstance(missing, list) or not all(isinstance(x, str) for x in missing):
+            raise ProtocolError("missing: expected a list of service names")
+        stats = msg.get("stats", {})
+        if not isinstance(stats, dict):
+            raise ProtocolError("stats: expected a map")
+        reason = msg.get("reason", "")
+        return cls(
+            state, _int(msg, "step"), _float(msg, "t"), _int(msg, "total_steps"), tuple(missing), str(reason), stats
+        )
