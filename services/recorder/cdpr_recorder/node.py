@@ -27,6 +27,7 @@ from cdpr.config.scenario import Scenario
 from cdpr.errors import InputError
 from cdpr.protocol import Keys, ProtocolError, Setpoints, Status, Telemetry
 from cdpr.protocol.session import session_info
+from cdpr.runtime.options import RECORDER_OPTIONS, add_options
 from cdpr.runtime.service import Node
 from cdpr.runtime.transport import Event, RateLimitedLog, log
 from cdpr_recorder.core import Batch, Params, RecorderCore
@@ -104,18 +105,7 @@ class RecorderNode(Node):
 
     @classmethod
     def add_arguments(cls, parser: argparse.ArgumentParser) -> None:
-        g = parser.add_argument_group("recorder")
-        g.add_argument("--rrd", default=None, metavar="FILE", help="write the recording to this .rrd file")
-        g.add_argument("--spawn", action="store_true", help="also stream to a new Rerun viewer")
-        g.add_argument("--connect-viewer", default=None, metavar="URL",
-                       help="also stream to the Rerun viewer at this gRPC URL")
-        g.add_argument("--mcap", default=None, metavar="FILE",
-                       help="also write the session to this .mcap file (Foxglove schemas, log time = sim time)")
-        g.add_argument("--foxglove", type=int, nargs="?", const=8765, default=None, metavar="PORT",
-                       help="also serve the session live on a Foxglove WebSocket server (default port 8765; "
-                            "0: a free one)")
-        g.add_argument("--foxglove-host", default="127.0.0.1", metavar="HOST",
-                       help="address the Foxglove server listens on (default: %(default)s)")
+        add_options(parser.add_argument_group("recorder"), RECORDER_OPTIONS)
 
     @classmethod
     def from_args(cls, scenario: Scenario, keys: Keys, args: argparse.Namespace) -> RecorderNode:

@@ -17,6 +17,7 @@ from collections.abc import Callable, Sequence
 from typing import TYPE_CHECKING, NoReturn
 
 from cdpr.errors import InputError
+from cdpr.runtime.options import RT_PRIORITY, SESSION_OPTIONS, add_options
 
 if TYPE_CHECKING:
     from cdpr.config.scenario import Scenario
@@ -44,11 +45,7 @@ def parser_for(name: str) -> argparse.ArgumentParser:
     doc = (cls.__doc__ or "").strip().splitlines()
     parser = argparse.ArgumentParser(prog=f"cdpr {name}", description=doc[0] if doc else None)
     parser.add_argument("scenario", help="a shipped scenario name (caroca_15kg) or a scenario YAML file")
-    parser.add_argument("--session", dest="session_id", default="default", help="session id (default: %(default)s)")
-    parser.add_argument("--duration", type=float, default=None, help="override the scenario's duration (s)")
-    parser.add_argument("--rt-priority", type=int, default=None, metavar="1-99",
-                        help="run under SCHED_FIFO at this priority (realtime mode on a busy machine; "
-                             "needs CAP_SYS_NICE)")
+    add_options(parser, (*SESSION_OPTIONS, RT_PRIORITY))
     add_zenoh_arguments(parser)
     cls.add_arguments(parser)
     return parser

@@ -44,6 +44,7 @@ from cdpr.config.scenario import Scenario
 from cdpr.errors import InputError
 from cdpr.protocol import Keys, ProtocolError, ServiceStats, Setpoints, Status, Telemetry
 from cdpr.runtime.main import build_node
+from cdpr.runtime.options import RECORDER_OPTIONS, options_argv
 from cdpr.runtime.service import PARENT_ENV, serve_composed, set_realtime_priority
 from cdpr.runtime.transport import (
     Inbox,
@@ -346,18 +347,10 @@ def node_argv(scenario: Scenario, opts: RunOptions, router: str) -> dict[str, li
 
 
 def _recorder_args(opts: RunOptions) -> list[str]:
-    args: list[str] = []
-    for path, flag in ((opts.rrd, "--rrd"), (opts.mcap, "--mcap")):
+    for path in (opts.rrd, opts.mcap):
         if path:
             Path(path).parent.mkdir(parents=True, exist_ok=True)
-            args += [flag, path]
-    if opts.spawn:
-        args += ["--spawn"]
-    if opts.connect_viewer:
-        args += ["--connect-viewer", opts.connect_viewer]
-    if opts.foxglove is not None:
-        args += ["--foxglove", str(opts.foxglove), "--foxglove-host", opts.foxglove_host]
-    return args
+    return options_argv(RECORDER_OPTIONS, opts)
 
 
 def run_session(scenario: Scenario, opts: RunOptions | None = None) -> int:

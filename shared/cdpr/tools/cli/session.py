@@ -11,22 +11,19 @@ import click
 import numpy as np
 
 from cdpr.errors import InputError
-from cdpr.tools.cli.group import cli
+from cdpr.runtime.options import RECORDER_OPTIONS, RT_PRIORITY, SESSION_OPTIONS
+from cdpr.tools.cli.group import cli, click_option, click_options
 
 # ------------------------------------------------------------------------------------------------
 # Running sessions
 
 
 def _scenario_options(f: Callable[..., Any]) -> Callable[..., Any]:
-    f = click.option("--duration", type=float, default=None, help="override the scenario's duration (s)")(f)
-    f = click.option("--session", "session_id", default="default", show_default=True, help="session id")(f)
-    return click.argument("scenario")(f)
+    return click.argument("scenario")(click_options(SESSION_OPTIONS)(f))
 
 
 def _rt_option(f: Callable[..., Any]) -> Callable[..., Any]:
-    return click.option("--rt-priority", type=int, default=None, metavar="1-99",
-                        help="run under SCHED_FIFO at this priority (realtime mode on a busy machine; "
-                             "needs CAP_SYS_NICE)")(f)
+    return click_option(RT_PRIORITY)(f)
 
 
 def _load(scenario: str, duration: float | None) -> Any:
@@ -59,15 +56,7 @@ _node_command("recorder", "Run the recorder: subscribes to the whole session and
 
 def _run_options(f: Callable[..., Any]) -> Callable[..., Any]:
     f = click.option("--summary", type=click.Path(), default=None, help="also write the JSON summary here")(f)
-    f = click.option("--connect-viewer", default=None, help="stream the recording to this Rerun viewer URL")(f)
-    f = click.option("--spawn", is_flag=True, help="stream the recording to a new Rerun viewer")(f)
-    f = click.option("--rrd", type=click.Path(), default=None, help="write the recording to this .rrd file")(f)
-    f = click.option("--mcap", type=click.Path(), default=None,
-                     help="write the session to this .mcap file (Foxglove schemas; also with --rrd)")(f)
-    f = click.option("--foxglove", type=click.IntRange(0, 65535), is_flag=False, flag_value=8765, default=None,
-                     metavar="[PORT]", help="serve the session live to Foxglove (WebSocket, default port 8765)")(f)
-    f = click.option("--foxglove-host", default="127.0.0.1", show_default=True,
-                     help="address the --foxglove server listens on")(f)
+    f = click_options(RECORDER_OPTIONS)(f)
     f = click.option("--mode", type=click.Choice(["fast", "realtime"]), default="fast", show_default=True)(f)
     f = _rt_option(f)
     return _scenario_options(f)
