@@ -274,7 +274,7 @@ def test_in_process_gets_the_clocks_last_status(monkeypatch: pytest.MonkeyPatch,
             put = self._deliver
 
             def deliver(event: Any) -> None:
-                if event.kind == "status" and Status.decode(event.payload).state == "finished":
+                if event.topic == "status" and Status.decode(event.payload).state == "finished":
                     time.sleep(0.3)
                 put(event)
 

@@ -27,7 +27,7 @@ from cdpr.errors import InputError
 from cdpr.protocol import PROTOCOL_VERSION, Command, Sensors, Setpoint, State, Status
 from cdpr.recording import mcap as fox
 from cdpr.tools.metrics import RunMetrics
-from cdpr_recorder.core import Params, RecorderCore
+from cdpr_recorder.core import RecorderCore, RecorderSettings
 from conftest import CDPR, cdpr, free_port, last_json_line, sigterm_the_recorder
 
 PER_STEP = (fox.PLATFORM_STATE, fox.LENGTHS, fox.TENSIONS, fox.SETPOINT, fox.ERROR, fox.COMMAND)
@@ -83,7 +83,7 @@ def test_log_times_are_sim_time_in_nanoseconds() -> None:
 
 def _feed_core(m: int, n: int) -> tuple[list[Any], list[State], list[Setpoint], list[Command]]:
     rng = np.random.default_rng(11)
-    core = RecorderCore(Params(cables=m, batch_steps=7, scene_every=4, path_every=6))
+    core = RecorderCore(RecorderSettings(cables=m, batch_steps=7, scene_every=4, path_every=6))
     states, setpoints, commands = [], [], []
     for k in range(n + 1):
         q = rng.normal(size=4)
@@ -238,7 +238,7 @@ def test_files_alone_take_large_batches_a_live_viewer_small_ones(tmp_path: Path)
                           ({"mcap": str(tmp_path / "b.mcap"), "foxglove": 0}, node.LIVE_BATCH_STEPS)):
         rec = node.RecorderNode(sc, Keys("x"), **kwargs)
         try:
-            assert rec.core.params.batch_steps == steps
+            assert rec.core.settings.batch_steps == steps
         finally:
             rec.close()
     assert node.LIVE_BATCH_STEPS < node.FILE_BATCH_STEPS

@@ -26,7 +26,7 @@ from cdpr.mechanics.kinematics import inverse_kinematics
 from cdpr.mechanics.rotation import matrix_to_quat, orientation_error, quat_to_matrix, rotvec_to_matrix
 from cdpr.protocol import Command, Setpoint, State, Status
 from cdpr.tools.metrics import RunMetrics
-from cdpr_recorder.core import Params, RecorderCore, flatten_stats, orientation_errors
+from cdpr_recorder.core import RecorderCore, RecorderSettings, flatten_stats, orientation_errors
 from conftest import CDPR, cdpr, last_json_line, sigterm_the_recorder, wait_no_processes
 
 # --------------------------------------------------------------------------------------------------
@@ -93,7 +93,7 @@ def test_core_errors_follow_the_run_metrics_definitions() -> None:
     states, setpoints, commands = _messages(n, m, seed=1)
     stream: list[Any] = [*states, *setpoints, *commands, *states[10:20], *setpoints[:5]]
     random.Random(3).shuffle(stream)
-    core = RecorderCore(Params(cables=m, batch_steps=8))
+    core = RecorderCore(RecorderSettings(cables=m, batch_steps=8))
     metrics = RunMetrics()
     batches = []
     for msg in stream:
@@ -135,7 +135,7 @@ def test_core_errors_follow_the_run_metrics_definitions() -> None:
 def test_core_batches_decimate_the_scene_and_grow_the_path() -> None:
     m = 2
     states, setpoints, _ = _messages(23, m, seed=2)
-    core = RecorderCore(Params(cables=m, batch_steps=10, scene_every=3, path_every=4))
+    core = RecorderCore(RecorderSettings(cables=m, batch_steps=10, scene_every=3, path_every=4))
     taken = []
     for s, sp in zip(states, [*setpoints, None], strict=True):
         core.add_state(s)
@@ -160,14 +160,14 @@ def test_core_batches_decimate_the_scene_and_grow_the_path() -> None:
 
 
 def test_core_rejects_the_wrong_number_of_cables() -> None:
-    core = RecorderCore(Params(cables=3))
+    core = RecorderCore(RecorderSettings(cables=3))
     states, _, _ = _messages(1, 4, seed=0)
     with pytest.raises(ValueError, match="expected 3 tensions"):
         core.add_state(states[0])
 
 
 def test_status_rows_keep_the_numbers_and_mark_changes() -> None:
-    core = RecorderCore(Params(cables=1))
+    core = RecorderCore(RecorderSettings(cables=1))
     stats = {
         "rate": 512.5,
         "late_ticks": 2,

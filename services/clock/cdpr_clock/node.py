@@ -112,7 +112,7 @@ class ClockNode(Node):
     # -- events -----------------------------------------------------------------------------------
     def handle(self, event: Event) -> None:
         now = time.monotonic()
-        if event.kind == "telemetry":
+        if event.topic == "telemetry":
             block = self.decode(event, self.m)
             if block is None or not block.states:
                 return
@@ -127,12 +127,12 @@ class ClockNode(Node):
             if self.core.finished and self.finished_at is None:
                 self.finish(now)
             return
-        if event.kind == "stats":
+        if event.topic == "stats":
             if (stats := self.decode(event)) is not None:
                 self.faults[stats.service] = stats.counters
             return
         service = event.key.rsplit("/", 1)[-1]
-        if event.kind == "alive":
+        if event.topic == "alive":
             self.present.add(service)
         else:
             self.present.discard(service)

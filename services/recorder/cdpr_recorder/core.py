@@ -29,7 +29,7 @@ I64 = NDArray[np.int64]
 
 
 @dataclass(frozen=True)
-class Params:
+class RecorderSettings:
     cables: int
     batch_steps: int = 200  # states buffered before a batch is due
     scene_every: int = 10  # 3D decimation: every n-th step
@@ -183,7 +183,7 @@ def _rows(values: list[tuple[float, ...]], width: int) -> F64:
 class RecorderCore:
     """Buffers decoded messages; the node owns one and calls :meth:`take` when :attr:`due` and at the end."""
 
-    params: Params
+    settings: RecorderSettings
     states: list[State] = field(default_factory=list)
     setpoints: list[Setpoint] = field(default_factory=list)
     commands: list[tuple[Command, float]] = field(default_factory=list)  # (command, lag)
@@ -207,8 +207,8 @@ class RecorderCore:
     # -- input ------------------------------------------------------------------------------------
     def add_state(self, s: State) -> bool:
         """Buffer state ``s``; False if that step was already recorded (a resend)."""
-        if len(s.tensions) != self.params.cables:
-            raise ValueError(f"expected {self.params.cables} tensions, got {len(s.tensions)}")
+        if len(s.tensions) != self.settings.cables:
+            raise ValueError(f"expected {self.settings.cables} tensions, got {len(s.tensions)}")
         if s.step in self.seen_states:
             self.duplicates += 1
             return False
@@ -262,7 +262,7 @@ class RecorderCore:
 
     @property
     def due(self) -> bool:
-        return len(self.states) >= self.params.batch_steps
+        return len(self.states) >= self.settings.batch_steps
 
     @property
     def pending(self) -> bool:
@@ -271,7 +271,7 @@ class RecorderCore:
     # -- output -----------------------------------------------------------------------------------
     def take(self, final: bool = False) -> Batch:
         """Everything buffered since the last call, as columns. ``final``: the recording ends now."""
-        p = self.params
+        p = self.settings
         final_step = self.last_state.step if final and self.last_state is not None else None
         states = sorted(self.states, key=lambda s: s.step)
         setpoints = sorted(self.setpoints, key=lambda s: s.step)
@@ -340,7 +340,7 @@ class RecorderCore:
         times: list[float] = []
         points: list[F64] = []
         for s in states:
-            on_grid = s.step % self.params.path_every == 0 or s.step == final_step
+            on_grid = s.step % self.settings.path_every == 0 or s.step == final_step
             if on_grid and s.step > self.path_step:
                 self.path.append((s.pose[0], s.pose[1], s.pose[2]))
                 self.path_step = s.step

@@ -30,7 +30,7 @@ from cdpr.protocol.session import session_info
 from cdpr.runtime.options import RECORDER_OPTIONS, add_options
 from cdpr.runtime.service import Node
 from cdpr.runtime.transport import Event, RateLimitedLog, log
-from cdpr_recorder.core import Batch, Params, RecorderCore
+from cdpr_recorder.core import Batch, RecorderCore, RecorderSettings
 
 if TYPE_CHECKING:
     from cdpr.recording.live import LiveServer
@@ -55,7 +55,7 @@ class RecorderNode(Node):
         rrd: str | None = None,
         spawn: bool = False,
         viewer: str | None = None,
-        params: Params | None = None,
+        settings: RecorderSettings | None = None,
         mcap: str | None = None,
         foxglove: int | None = None,
         foxglove_host: str = "127.0.0.1",
@@ -70,7 +70,7 @@ class RecorderNode(Node):
         if not (rerun or mcap or foxglove is not None):
             raise InputError("the recorder needs a sink: --rrd, --spawn, --connect-viewer, --mcap or --foxglove")
         live = bool(spawn or viewer or foxglove is not None)
-        self.core = RecorderCore(params or Params(cables=self.m,
+        self.core = RecorderCore(settings or RecorderSettings(cables=self.m,
                                                   batch_steps=LIVE_BATCH_STEPS if live else FILE_BATCH_STEPS))
         self.warn = RateLimitedLog(self.name)
         self.bad_messages = 0
@@ -125,8 +125,8 @@ class RecorderNode(Node):
             "cables": self.m,
             "tmin": self.robot.tmin,
             "tmax": self.robot.tmax,
-            "scene_every": self.core.params.scene_every,
-            "path_every": self.core.params.path_every,
+            "scene_every": self.core.settings.scene_every,
+            "path_every": self.core.settings.path_every,
             "info": session_info(sc),
         }
 
@@ -142,7 +142,7 @@ class RecorderNode(Node):
     def handle(self, event: Event) -> None:
         core = self.core
         try:
-            if event.kind == "telemetry":
+            if event.topic == "telemetry":
                 block = Telemetry.decode(event.payload, self.m)
                 for state in block.states:
                     core.add_state(state)
@@ -156,8 +156,8 @@ class RecorderNode(Node):
                     core.add_setpoint(sp)
         except ProtocolError as exc:
             self.bad_messages += 1
-            self.count(f"bad_{event.kind}")
-            self.warn(f"bad_{event.kind}", f"dropped a bad {event.kind} message: {exc}")
+            self.count(f"bad_{event.topic}")
+            self.warn(f"bad_{event.topic}", f"dropped a bad {event.topic} message: {exc}")
             return
         if self.core.due:
             self.flush()

@@ -68,7 +68,7 @@ class SimNode(Node):
         return []
 
     def handle(self, event: Event) -> None:
-        if event.kind == "tick":
+        if event.topic == "tick":
             if (tick := self.decode(event)) is not None:
                 self.on_tick(tick)
         elif (cmd := self.decode(event, self.m, self.command_kind)) is not None:

@@ -23,7 +23,7 @@ class Topic:
     key: str
     message: str  # the class in cdpr.protocol that encodes and decodes it
     bad: str = ""  # the fault counter of a receiver that drops a bad one (docs/protocol.md, "Bad input")
-    kind: str = "pubsub"  # "pubsub", "queryable" (answered to a `get`) or "liveliness" (a token)
+    transport: str = "pubsub"  # "pubsub", "queryable" (answered to a `get`) or "liveliness" (a token)
 
 
 TOPICS: dict[str, Topic] = {
@@ -34,9 +34,9 @@ TOPICS: dict[str, Topic] = {
     "command": Topic("controller/command", "Command", "bad_commands"),
     "telemetry": Topic("sim/telemetry", "Telemetry", "bad_telemetry"),
     "sensors": Topic("sim/sensors", "Sensors", "bad_sensors"),
-    "info": Topic("session/info", "SessionInfo", kind="queryable"),
+    "info": Topic("session/info", "SessionInfo", transport="queryable"),
     "stats": Topic("stats/{node}", "ServiceStats", "bad_stats"),
-    "alive": Topic("alive/{node}", "", kind="liveliness"),
+    "alive": Topic("alive/{node}", "", transport="liveliness"),
 }
 
 

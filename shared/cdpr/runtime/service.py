@@ -55,7 +55,7 @@ class Node:
     direct = False  # handle events on Zenoh's receive thread (see the module docstring)
     # The topics this node reads and writes (names of cdpr.protocol.wiring.TOPICS): its row of the wiring
     # table, set for each subclass from its ``name``; serve() declares them. Events arrive with the topic
-    # name as their kind; publishers wait in ``self.publishers[topic]``.
+    # name as their ``topic``; publishers wait in ``self.publishers[topic]``.
     subscribes: tuple[str, ...] = ()
     publishes: tuple[str, ...] = ()
 
@@ -94,7 +94,7 @@ class Node:
         """The event's message, decoded and checked as its topic says (``cdpr.protocol.wiring.TOPICS``; ``args``
         go to its ``decode``: the number of cables, …). A payload that fails is counted under the topic's
         fault counter, logged in one line naming the field (rate-limited), and None is returned."""
-        topic = TOPICS[event.kind]
+        topic = TOPICS[event.topic]
         try:
             return getattr(protocol, topic.message).decode(event.payload, *args)
         except ProtocolError as exc:
@@ -141,7 +141,7 @@ class Node:
 def pair(node: Node, pairing: Pairing, event: Event, m: int | None) -> tuple[State, Setpoint] | None:
     """A controller's ``state`` or ``setpoints`` event, decoded (a bad one counted and dropped) and given to
     ``pairing``: the (state, setpoint) pair it makes due, if any (the controller node and the SDK's)."""
-    if event.kind == "state":
+    if event.topic == "state":
         state = node.decode(event, m)
         return None if state is None else pairing.on_state(state)
     block = node.decode(event)
@@ -286,7 +286,7 @@ def declare_topics(node: Node, session: zenoh.Session, inbox: Inbox) -> list[Any
     keys = node.keys
     keep: list[Any] = []  # publishers, subscribers, queryables: kept alive as long as the node serves
     for topic in node.publishes:
-        if TOPICS[topic].kind == "queryable":
+        if TOPICS[topic].transport == "queryable":
             def on_query(query: zenoh.Query, topic: str = topic) -> None:
                 query.reply(query.key_expr, node.reply(topic))
 
@@ -304,7 +304,7 @@ def _event_handler(node: Node) -> Callable[[Event], None]:
     """The node's handler: ``clock/status`` decoded for :meth:`Node.on_status`, the rest to :meth:`Node.handle`."""
 
     def on_event(event: Event) -> None:
-        if event.kind == "status":
+        if event.topic == "status":
             if (status := node.decode(event)) is not None:
                 node.on_status(status)
         else:
@@ -313,7 +313,7 @@ def _event_handler(node: Node) -> Callable[[Event], None]:
     return on_event
 
 
-class _Host:
+class _ServedNode:
     """One node on an open session: its topics, its stats publisher and liveliness token, its chores."""
 
     def __init__(self, node: Node, session: zenoh.Session, inbox: Inbox, parent: int | None) -> None:
@@ -386,7 +386,7 @@ def serve(node: Node, conf: zenoh.Config, stop: StopFlag | None = None) -> int:
         if dispatcher is None:
             stop.on_set(inbox.wake)  # a queued node: ends the main thread's wait for the next event
         _freeze()  # before the token: a peer that sees it may send at once, and the collection holds the GIL
-        host = _Host(node, session, inbox, parent)
+        host = _ServedNode(node, session, inbox, parent)
         try:
             if dispatcher is not None:
                 while not node.done and not stop and dispatcher.error is None:
@@ -425,7 +425,7 @@ def serve_composed(nodes: list[Node], session: zenoh.Session, stop: StopFlag | N
     stop = stop or StopFlag().install()
     wake = threading.Event()
     stop.on_set(wake.set)
-    runners: list[tuple[Node, _Dispatcher, _Host]] = []
+    runners: list[tuple[Node, _Dispatcher, _ServedNode]] = []
     closed: set[int] = set()
 
     def close(i: int) -> None:  # a node that is done leaves at once (its token goes: the clock sees it)
@@ -439,7 +439,7 @@ def serve_composed(nodes: list[Node], session: zenoh.Session, stop: StopFlag | N
         _freeze()  # before the first token (see serve)
         for node in nodes:
             dispatcher = _Dispatcher(node, _event_handler(node), wake, stop)
-            runners.append((node, dispatcher, _Host(node, session, Inbox(dispatcher), None)))
+            runners.append((node, dispatcher, _ServedNode(node, session, Inbox(dispatcher), None)))
         while not stop:
             wake.clear()  # before the turn: a wake-up from now on ends the sleep below
             timeout = math.inf

@@ -135,7 +135,7 @@ def _endpoints(conf: zenoh.Config) -> list[str]:
 class Event:
     """One thing that happened to a service: a message on a key, or a liveliness change."""
 
-    kind: str  # a protocol key name ("tick", "state", ...), or "alive" / "gone" for liveliness
+    topic: str  # the topic's name (wiring.TOPICS: "tick", "state", …), or "alive" / "gone": a token came or went
     payload: bytes
     key: str
     received: float  # time.monotonic() at receipt, for statistics only (never for the simulation)
@@ -185,12 +185,12 @@ class Inbox:
         # thread itself: nothing between the message and its handler.
         self._indirect = handler is None and not direct
 
-    def subscribe(self, session: zenoh.Session, key: str, kind: str) -> zenoh.Subscriber:
+    def subscribe(self, session: zenoh.Session, key: str, topic: str) -> zenoh.Subscriber:
         deliver, monotonic, pin = self._deliver, time.monotonic, pin_thread_state
 
         def on_sample(sample: zenoh.Sample) -> None:
             pin()
-            deliver(Event(kind, sample.payload.to_bytes(), str(sample.key_expr), monotonic()))
+            deliver(Event(topic, sample.payload.to_bytes(), str(sample.key_expr), monotonic()))
 
         return session.declare_subscriber(key, zenoh.handlers.Callback(on_sample, indirect=self._indirect))
 
@@ -200,8 +200,8 @@ class Inbox:
 
         def on_token(sample: zenoh.Sample) -> None:
             pin_thread_state()
-            kind = "alive" if sample.kind == zenoh.SampleKind.PUT else "gone"
-            deliver(Event(kind, b"", str(sample.key_expr), time.monotonic()))
+            came = "alive" if sample.kind == zenoh.SampleKind.PUT else "gone"
+            deliver(Event(came, b"", str(sample.key_expr), time.monotonic()))
 
         return session.liveliness().declare_subscriber(
             key, zenoh.handlers.Callback(on_token, indirect=self._indirect), history=True

@@ -238,21 +238,21 @@ class Tape:
     """The loop's messages as the launcher's monitor receives them, kept raw and decoded after the run.
 
     Each sample is appended right in Zenoh's callback, on the thread that received it (the binding's
-    ``indirect=False``): a (kind, bytes) pair per message, no thread woken, no queue. In
+    ``indirect=False``): a (topic, bytes) pair per message, no thread woken, no queue. In
     ``cdpr run`` that thread is the session router's, so the callback must never wait long for this
     process's GIL: the launcher's main thread only wakes a few times a second while the loop runs,
     and its long-lived objects are frozen out of the garbage collector's sight (``gc.freeze``).
     """
 
     def __init__(self) -> None:
-        self.items: list[tuple[str, bytes]] = []  # (kind, payload) in arrival order
+        self.items: list[tuple[str, bytes]] = []  # (topic, payload) in arrival order
 
-    def subscribe(self, session: zenoh.Session, key: str, kind: str) -> zenoh.Subscriber:
+    def subscribe(self, session: zenoh.Session, key: str, topic: str) -> zenoh.Subscriber:
         add, pin = self.items.append, pin_thread_state
 
         def on_sample(sample: zenoh.Sample) -> None:
             pin()
-            add((kind, sample.payload.to_bytes()))  # one append: atomic, whichever thread runs it
+            add((topic, sample.payload.to_bytes()))  # one append: atomic, whichever thread runs it
 
         return session.declare_subscriber(key, zenoh.handlers.Callback(on_sample, indirect=False))
 
@@ -276,11 +276,11 @@ class _Monitor:
 
     def poll(self, timeout: float) -> None:
         for ev in self.inbox.drain(timeout):
-            if ev.kind == "status":
+            if ev.topic == "status":
                 with contextlib.suppress(ProtocolError):
                     self.final = Status.decode(ev.payload)
             else:
-                self.raw.append((ev.kind, ev.payload))
+                self.raw.append((ev.topic, ev.payload))
         final, now = self.final, time.monotonic()
         k = final.step if final is not None else 0
         if not self.quiet and now - self.last_progress >= 1.0 and k != self.last_step:  # no repeats while waiting
@@ -451,7 +451,7 @@ def _watch_children(children: Children, monitor: _Monitor, stop: StopFlag, opts:
     finally:
         # After a normal end the services leave by themselves; otherwise they are told to.
         codes = children.stop(wait_first=FINISH_GRACE if monitor.finished else 0.0)
-        monitor.raw.extend((ev.kind, ev.payload) for ev in monitor.inbox.drain(0.05))  # the services' last words
+        monitor.raw.extend((ev.topic, ev.payload) for ev in monitor.inbox.drain(0.05))  # the services' last words
     return codes
 
 
@@ -460,18 +460,18 @@ def _replay(scenario: Scenario, items: Iterable[tuple[str, bytes]]) -> tuple[Run
     metrics = RunMetrics()
     faults: dict[str, dict[str, int]] = {}
     m = scenario.robot.m
-    for kind, payload in items:
+    for topic, payload in items:
         try:
-            if kind == "telemetry":
+            if topic == "telemetry":
                 block = Telemetry.decode(payload, m)
                 for state in block.states:
                     metrics.add_state(state)
                 for cmd in block.commands:
                     metrics.add_command(cmd)
-            elif kind == "setpoints":
+            elif topic == "setpoints":
                 for sp in Setpoints.decode(payload).items:
                     metrics.add_setpoint(sp)
-            elif kind == "stats":
+            elif topic == "stats":
                 stats_msg = ServiceStats.decode(payload)
                 faults[stats_msg.service] = stats_msg.counters
         except ProtocolError:

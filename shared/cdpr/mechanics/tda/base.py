@@ -17,10 +17,10 @@ from numpy.typing import ArrayLike
 
 from cdpr.mechanics.rotation import Array, BoolArray
 
-Status = Literal[
+TdaStatus = Literal[
     "optimal", "suboptimal", "rate_relaxed", "out_of_bounds", "infeasible", "solver_failed", "invalid_input"
 ]
-STATUSES: tuple[str, ...] = get_args(Status)
+STATUSES: tuple[str, ...] = get_args(TdaStatus)
 Reference = Literal["min-norm", "mid-range"]
 FEASIBLE_STATUSES: frozenset[str] = frozenset({"optimal", "suboptimal", "rate_relaxed"})
 
