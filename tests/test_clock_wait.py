@@ -12,6 +12,8 @@ import subprocess
 import sys
 import time
 
+import pytest
+
 from conftest import free_port
 
 PY = sys.executable
@@ -92,8 +94,9 @@ def test_without_a_timeout_the_clock_keeps_waiting(session_id: str) -> None:
     assert clk.returncode == 128 + signal.SIGTERM
 
 
-def test_join_timeout_must_not_be_negative() -> None:
-    proc = subprocess.run([PY, "-m", "cdpr_clock", "caroca_1kg", "--join-timeout", "-1"],
+@pytest.mark.parametrize("flag", ["--join-timeout", "--rejoin-timeout"])
+def test_join_timeouts_must_not_be_negative(flag: str) -> None:
+    proc = subprocess.run([PY, "-m", "cdpr_clock", "caroca_1kg", flag, "-1"],
                           capture_output=True, text=True, timeout=60)
     assert proc.returncode == 2
-    assert proc.stderr.strip() == "cdpr: error: --join-timeout: must be 0 (no limit) or a number of seconds, got -1.0"
+    assert proc.stderr.strip() == f"cdpr: error: {flag}: must be 0 (no limit) or a number of seconds, got -1.0"

@@ -114,6 +114,58 @@ def test_sim_restart_aborts_the_session(session_id: str) -> None:
     assert "restarted" in err
 
 
+@pytest.mark.parametrize("service", ["controller", "sim"])
+def test_a_participant_that_does_not_come_back_ends_the_session(session_id: str, service: str,
+                                                                 tmp_path: Path) -> None:
+    """Killed mid-run and never restarted: the clock waits ``--rejoin-timeout`` seconds, then ends the session
+    ``aborted`` naming who left and at which step; every service exits, ``cdpr up`` returns 1, and the
+    recording of the steps before holds every one of them."""
+    endpoint = f"tcp/127.0.0.1:{free_port()}"
+    keys = Keys(session_id)
+    rrd = tmp_path / "left.rrd"
+    up = subprocess.Popen(
+        [*CDPR, "up", "caroca_15kg", "--duration", "5", "--session", session_id, "--without", service,
+         "--listen", endpoint, "--quiet", "--rejoin-timeout", "2", "--rrd", str(rrd)],
+        stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+    )
+    gone: subprocess.Popen[str] | None = None
+    try:
+        with zenoh.open(zenoh_config("client", connect=[endpoint])) as z:
+            watch = Watcher(z, keys)
+            gone = subprocess.Popen([*CDPR, service, "caroca_15kg", "--duration", "5", "--session", session_id,
+                                     "--zenoh-mode", "client", "--connect", endpoint],
+                                    stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, text=True)
+            watch.wait(lambda: len(watch.states) > 200, 60, "200 steps")
+            gone.send_signal(signal.SIGKILL)
+            gone.wait(timeout=10)
+            watch.wait(lambda: watch.status is not None and watch.status.state == "paused", 30, "the pause")
+            left_at = watch.status.step if watch.status is not None else -1
+            watch.wait(lambda: watch.status is not None and watch.status.state == "aborted", 60, "the abort")
+            assert watch.status is not None
+            reason = watch.status.reason
+            out, err = up.communicate(timeout=60)
+    finally:
+        for p in (up, gone):
+            if p is not None and p.poll() is None:
+                p.kill()
+    assert re.fullmatch(rf"{service} left the session at step (\d+) and did not come back within 2 s", reason), reason
+    step = int(reason.split(" at step ")[1].split()[0])
+    assert step == left_at
+    assert f"[clock] aborted: {reason}" in err
+    s = last_json_line(out)
+    assert s["exit_ok"] is False
+    assert up.returncode == 1
+    assert all(code == 0 for name, code in s["exit_codes"].items() if name != "clock"), s["exit_codes"]
+    assert s["exit_codes"]["clock"] == 1
+    from rerun.chunk import RrdReader
+
+    recorded = set()
+    for chunk in RrdReader(str(rrd)).stream().to_chunks():
+        if chunk.entity_path == f"/{recording.ACTUAL_POSITION}" and not chunk.is_static:
+            recorded |= set(chunk.to_record_batch().column("step").to_pylist())
+    assert recorded == set(range(step + 1)), (len(recorded), step)
+
+
 def _child_pid(session_id: str, service: str, timeout: float = 60.0) -> int:
     deadline = time.monotonic() + timeout
     while time.monotonic() < deadline:

@@ -26,6 +26,7 @@ from cdpr_clock.core import ClockCore
 LINGER = 2.0  # seconds the clock keeps announcing "finished" while participants leave
 HANDSHAKE_FIRST_REPEAT = 0.05  # s: tick 0 is repeated after this, then twice as long each time (core docstring)
 WAIT_LOG_FIRST, WAIT_LOG_EVERY = 2.0, 5.0  # "waiting for ..." lines before the start: the first, then every
+REJOIN_TIMEOUT = 60.0  # s a participant that left a session under way may take to come back (--rejoin-timeout)
 
 
 class ClockNode(Node):
@@ -42,6 +43,7 @@ class ClockNode(Node):
         resend_after: float = 1.0,
         status_period: float = 1.0,
         join_timeout: float = 0.0,
+        rejoin_timeout: float = REJOIN_TIMEOUT,
     ) -> None:
         super().__init__(keys)
         self.scenario = scenario
@@ -57,6 +59,8 @@ class ClockNode(Node):
         self.finished_at: float | None = None
         self.faults: dict[str, dict[str, int]] = {}  # every service's fault counters (stats/{service})
         self.join_timeout = join_timeout  # seconds for every participant to join (0: no limit)
+        self.rejoin_timeout = rejoin_timeout  # seconds a participant that left may take to come back (0: no limit)
+        self._gone: dict[str, tuple[float, int]] = {}  # participants that left after the start: (when, step)
         self._waiting_since: float | None = None  # the first idle() in state "waiting"
         self._next_wait_log = 0.0
         self._tick: zenoh.Publisher | None = None
@@ -77,6 +81,9 @@ class ClockNode(Node):
         g.add_argument("--join-timeout", type=float, default=0.0, metavar="S",
                        help="abort (exit code 1) if a participant has not joined S seconds after the start "
                             "(0: wait for ever; default: %(default)s)")
+        g.add_argument("--rejoin-timeout", type=float, default=REJOIN_TIMEOUT, metavar="S",
+                       help="abort (exit code 1) if a participant that left a session under way has not come "
+                            "back within S seconds (0: wait for ever; default: %(default)s)")
 
     @classmethod
     def from_args(cls, scenario: Scenario, keys: Keys, args: argparse.Namespace) -> ClockNode:
@@ -88,10 +95,12 @@ class ClockNode(Node):
             raise InputError(f"--lookahead: must be between 0 and 100000 steps, got {args.lookahead}")
         if not args.resend_after >= 0.01:
             raise InputError(f"--resend-after: must be at least 0.01 s, got {args.resend_after}")
-        if not args.join_timeout >= 0:
-            raise InputError(f"--join-timeout: must be 0 (no limit) or a number of seconds, got {args.join_timeout}")
+        for flag, value in (("--join-timeout", args.join_timeout), ("--rejoin-timeout", args.rejoin_timeout)):
+            if not value >= 0:
+                raise InputError(f"{flag}: must be 0 (no limit) or a number of seconds, got {value}")
         return cls(scenario, keys, expected=names, realtime=args.mode == "realtime", lookahead=args.lookahead,
-                   resend_after=args.resend_after, join_timeout=args.join_timeout)
+                   resend_after=args.resend_after, join_timeout=args.join_timeout,
+                   rejoin_timeout=args.rejoin_timeout)
 
     @property
     def missing(self) -> tuple[str, ...]:
@@ -134,10 +143,13 @@ class ClockNode(Node):
         service = event.key.rsplit("/", 1)[-1]
         if event.topic == "alive":
             self.present.add(service)
+            self._gone.pop(service, None)
         else:
             self.present.discard(service)
             if service in self.expected and self.finished_at is None:
                 log(self.name, f"{service} left the session at step {self.core.reached}")
+                if self.state != "waiting":
+                    self._gone.setdefault(service, (now, self.core.reached))
         if self.finished_at is not None:
             return
         if self.missing:
@@ -163,6 +175,8 @@ class ClockNode(Node):
     def idle(self, now: float) -> None:
         if self.state == "waiting":
             self.check_joining(now)
+        elif self._gone and self.finished_at is None:
+            self.check_rejoining(now)
         if self.finished_at is not None:
             if now - self.last_status >= 0.25:
                 self.publish_status(now)
@@ -248,6 +262,14 @@ class ClockNode(Node):
             self._next_wait_log += WAIT_LOG_EVERY  # on a grid from the start (2, 7, 12 … s), however late this one
             log(self.name, f"waiting for {', '.join(self.missing)} to join session {self.keys.session!r} "
                 f"({waited:.0f} s)")
+
+    def check_rejoining(self, now: float) -> None:
+        """Abort once a participant that left the session under way has stayed away ``rejoin_timeout`` s."""
+        for service, (since, step) in self._gone.items():
+            if self.rejoin_timeout > 0 and service in self.missing and now - since > self.rejoin_timeout:
+                self.abort(f"{service} left the session at step {step} and did not come back within "
+                           f"{self.rejoin_timeout:g} s", now)
+                return
 
     def finish(self, now: float) -> None:
         self.finished_at = now

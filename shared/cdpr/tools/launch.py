@@ -60,7 +60,7 @@ from cdpr.tools.metrics import RunMetrics
 PEER_LISTEN = "tcp/127.0.0.1:0"  # where a local child listens for its peers: loopback, any free port
 STOP_GRACE = 4.0  # seconds a child gets to stop after SIGTERM before it is killed
 STOP_SIGNALS = {signal.SIGINT, signal.SIGTERM}
-FINISH_GRACE = 60.0  # after a normal end, seconds the services get to leave by themselves (the recorder
+FINISH_GRACE = 60.0  # after the clock's end, seconds the services get to leave by themselves (the recorder
 #                     may still be writing a large file)
 
 
@@ -304,6 +304,7 @@ class RunOptions:
     without: tuple[str, ...] = ()  # participants that join from elsewhere
     listen: tuple[str, ...] = ()  # where they connect (the session's router)
     join_timeout: float | None = None
+    rejoin_timeout: float | None = None  # the clock's --rejoin-timeout (None: its default)
     rt_priority: int | None = None
     in_process: bool = False
     mcap: str | None = None
@@ -335,7 +336,8 @@ def node_argv(scenario: Scenario, opts: RunOptions, router: str) -> dict[str, li
     if opts.rt_priority is not None and not opts.in_process:
         loop += ["--rt-priority", str(opts.rt_priority)]
     expected = ["sim", "trajectory", "controller"] + (["recorder"] if opts.recording else [])
-    argv = {"clock": [*loop, "--mode", opts.mode, "--expect", ",".join(expected)]}
+    rejoin = [] if opts.rejoin_timeout is None else ["--rejoin-timeout", repr(opts.rejoin_timeout)]
+    argv = {"clock": [*loop, "--mode", opts.mode, "--expect", ",".join(expected), *rejoin]}
     argv.update({name: loop for name in ("sim", "trajectory", "controller") if name not in opts.without})
     if opts.recording:
         # The recorder is a client of the router even among local peers: it takes a few blocks a second
@@ -449,8 +451,8 @@ def _watch_children(children: Children, monitor: _Monitor, stop: StopFlag, opts:
                 log("cdpr", f"stopping: participants did not join within {opts.join_timeout:g} s")
                 break
     finally:
-        # After a normal end the services leave by themselves; otherwise they are told to.
-        codes = children.stop(wait_first=FINISH_GRACE if monitor.finished else 0.0)
+        # After the clock's end (finished or aborted) the services leave by themselves; otherwise they are told to.
+        codes = children.stop(wait_first=FINISH_GRACE if monitor.ended else 0.0)
         monitor.raw.extend((ev.topic, ev.payload) for ev in monitor.inbox.drain(0.05))  # the services' last words
     return codes
 

@@ -98,6 +98,9 @@ def _leave(code: int, at_once: bool) -> NoReturn:
               help="endpoint where remote participants connect (default tcp/127.0.0.1:7447)")
 @click.option("--join-timeout", type=float, default=None,
               help="give up if a participant has not joined after this many seconds")
+@click.option("--rejoin-timeout", type=float, default=None,
+              help="end the session (aborted) if a participant that left has not come back after this many "
+                   "seconds (the clock's --rejoin-timeout: default 60, 0 for ever)")
 @click.option("--quiet", is_flag=True, help="no progress line")
 def up(**kw: Any) -> None:
     """Run the services of SCENARIO except --without ones, and wait for those to join over Zenoh."""
