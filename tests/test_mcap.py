@@ -114,7 +114,7 @@ def _feed_core(m: int, n: int) -> tuple[list[Any], list[State], list[Setpoint], 
 def _send(sink: fox.FoxgloveSink, b: Any) -> None:
     """What the recorder node does with a batch (cdpr_recorder.node.RecorderNode.send_foxglove)."""
     s, sp, c, e, r = b.states, b.setpoints, b.commands, b.errors, b.sensors
-    sink.states(s.step, s.t, s.pose, s.twist, s.lengths, s.tensions, s.clamped, s.scene)
+    sink.states(s.step, s.t, s.columns, s.scene)
     sink.setpoints(sp.step, sp.t, sp.pose, sp.scene)
     sink.commands(c.step, c.t, c.kind, c.values, c.feasible, c.status, c.solve_time, c.lag)
     sink.errors(e.step, e.t, e.position, e.orientation)
@@ -192,7 +192,8 @@ def test_the_pose_transform_decodes_as_foxglove_protobuf(tmp_path: Path) -> None
     robot = load_robot("caroca")
     sink = fox.FoxgloveSink(robot, {"scenario": "x"}, mcap=tmp_path / "p.mcap")
     pose = np.array([[0.5, -0.25, 1.5, 0.0, 0.0, math.sin(0.3), math.cos(0.3)]])
-    sink.states([10], [0.01], pose, np.zeros((1, 6)), np.ones((1, robot.m)), np.ones((1, robot.m)), [0], [True])
+    sink.states([10], [0.01], {"pose": pose, "twist": np.zeros((1, 6)), "cable_lengths": np.ones((1, robot.m)),
+                               "tensions": np.ones((1, robot.m)), "clamped": np.array([0])}, [True])
     sink.close()
     from mcap.reader import make_reader
 

@@ -154,9 +154,9 @@ def test_core_batches_decimate_the_scene_and_grow_the_path() -> None:
     assert np.array_equal(last_points[-1], states[23].pose[:3])
     assert np.array_equal(last_points[1], states[4].pose[:3])
     b = taken[0]
-    assert np.array_equal(b.states.tensions[3], states[3].tensions)
-    assert np.array_equal(b.states.lengths[5], states[5].cable_lengths)
-    assert b.states.clamped.tolist() == [s.clamped for s in states[:10]]
+    assert np.array_equal(b.states.columns["tensions"][3], states[3].tensions)
+    assert np.array_equal(b.states.columns["cable_lengths"][5], states[5].cable_lengths)
+    assert b.states.columns["clamped"].tolist() == [s.clamped for s in states[:10]]
 
 
 def test_core_rejects_the_wrong_number_of_cables() -> None:

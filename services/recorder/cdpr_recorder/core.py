@@ -23,6 +23,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from cdpr.protocol import Command, Sensors, Setpoint, State, Status
+from cdpr.protocol.streams import STATE_COLUMNS
 
 F64 = NDArray[np.float64]
 I64 = NDArray[np.int64]
@@ -44,12 +45,16 @@ class RecorderSettings:
 class StateRows:
     step: I64  # (n,) sorted
     t: F64
-    pose: F64  # (n, 7)
-    twist: F64  # (n, 6)
-    lengths: F64  # (n, m)
-    tensions: F64  # (n, m)
-    clamped: I64
+    columns: dict[str, NDArray[Any]]  # each column of STATE_COLUMNS: (n, width), (n,) for a one-number column
     scene: NDArray[np.bool_]  # rows that go to the 3D scene
+
+    @property
+    def pose(self) -> F64:
+        return self.columns["pose"]
+
+    @property
+    def tensions(self) -> F64:
+        return self.columns["tensions"]
 
 
 @dataclass(frozen=True)
@@ -290,11 +295,9 @@ class RecorderCore:
         state_rows = StateRows(
             step=s_step,
             t=np.asarray([s.t for s in states], dtype=float),
-            pose=_rows([s.pose for s in states], 7),
-            twist=_rows([s.twist for s in states], 6),
-            lengths=_rows([s.cable_lengths for s in states], m),
-            tensions=_rows([s.tensions for s in states], m),
-            clamped=_ids([s.clamped for s in states]),
+            columns={c.name: _ids([getattr(s, c.name) for s in states]) if c.integer
+                     else np.asarray([getattr(s, c.name) for s in states], dtype=float) if c.width == 1
+                     else _rows([getattr(s, c.name) for s in states], c.size(m)) for c in STATE_COLUMNS},
             scene=scene,
         )
         sp_step = _ids([s.step for s in setpoints])

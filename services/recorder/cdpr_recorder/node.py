@@ -27,6 +27,7 @@ from cdpr.config.scenario import Scenario
 from cdpr.errors import InputError
 from cdpr.protocol import Keys, ProtocolError, Setpoints, Status, Telemetry
 from cdpr.protocol.session import session_info
+from cdpr.protocol.streams import STATE, STATE_COLUMNS
 from cdpr.runtime.options import RECORDER_OPTIONS, add_options
 from cdpr.runtime.service import Node
 from cdpr.runtime.transport import Event, RateLimitedLog, log
@@ -205,7 +206,7 @@ class RecorderNode(Node):
         fox = self.fox
         assert fox is not None
         s = b.states
-        fox.states(s.step, s.t, s.pose, s.twist, s.lengths, s.tensions, s.clamped, s.scene)
+        fox.states(s.step, s.t, s.columns, s.scene)
         sp = b.setpoints
         fox.setpoints(sp.step, sp.t, sp.pose, sp.scene)
         c = b.commands
@@ -225,15 +226,9 @@ class RecorderNode(Node):
         assert rec is not None
         s = b.states
         if len(s.step):
-            recording.send_scalars(rec, recording.ACTUAL_POSITION, s.step, s.t, s.pose[:, :3])
-            recording.send_scalars(rec, recording.ACTUAL_QUATERNION, s.step, s.t, s.pose[:, 3:])
-            recording.send_scalars(rec, recording.ACTUAL_TWIST, s.step, s.t, s.twist)
-            recording.send_scalars(rec, recording.CABLE_LENGTHS, s.step, s.t, s.lengths)
-            recording.send_scalars(rec, recording.CLAMPED, s.step, s.t, s.clamped)
-            applied = s.step > 0  # state 0 has no applied tensions
+            recording.send_columns_series(rec, STATE_COLUMNS, s.step, s.t, s.columns)
+            applied = s.step >= STATE["tensions"].since  # state 0 has no applied tensions
             k, t = s.step[applied], s.t[applied]
-            for i in range(self.m):
-                recording.send_scalars(rec, recording.tension_series(i), k, t, s.tensions[applied, i])
             ends = (
                 [0, len(k) - 1] if len(k) > 1 else list(range(len(k)))
             )  # a straight line: two points a batch

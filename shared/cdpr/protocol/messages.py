@@ -10,6 +10,7 @@ that names the field; services log it, count it, and drop (or clamp, for tension
 
 from __future__ import annotations
 
+import itertools
 import math
 import re
 from collections.abc import Sequence
@@ -19,6 +20,7 @@ from typing import Any, Literal, get_args
 import msgpack
 
 from cdpr.mechanics.control import COMMAND_KINDS, CommandKind
+from cdpr.protocol.streams import STATE_COLUMNS
 from cdpr.protocol.wiring import TOPICS, WIRING
 
 PROTOCOL_VERSION = 2  # 2: ticks grant windows; setpoints and telemetry travel in blocks
@@ -231,7 +233,11 @@ class Tick:
 
 @dataclass(frozen=True, slots=True)
 class State:
-    """``sim/state``: the platform at step ``step`` and what acted on it during the previous step."""
+    """``sim/state``: the platform at step ``step`` and what acted on it during the previous step.
+
+    Its fields after ``step`` and ``t`` are the columns of :data:`cdpr.protocol.streams.STATE_COLUMNS`, in
+    their order (the table says what each is); encoding and decoding follow the table.
+    """
 
     step: int
     t: float
@@ -242,31 +248,52 @@ class State:
     clamped: int = 0  # commands clamped by the sim so far (optional on the wire, default 0)
 
     def encode(self) -> bytes:
-        return pack(
-            {
-                "step": self.step,
-                "t": self.t,
-                "pose": _floats(self.pose),
-                "twist": _floats(self.twist),
-                "cable_lengths": _floats(self.cable_lengths),
-                "tensions": _floats(self.tensions),
-                "clamped": self.clamped,
-            }
-        )
+        return pack({"step": self.step, "t": self.t, **{c: code(getattr(self, c)) for c, code in _STATE_CODE}})
 
     @classmethod
     def decode(cls, payload: bytes, cables: int | None = None) -> State:
         msg = unpack(payload)
-        lengths = _vector(msg, "cable_lengths", cables)
-        return cls(
-            _int(msg, "step"),
-            _float(msg, "t"),
-            _vector(msg, "pose", 7),
-            _vector(msg, "twist", 6),
-            lengths,
-            _vector(msg, "tensions", len(lengths)),
-            _int(msg, "clamped") if "clamped" in msg else 0,
-        )
+        step, t = _int(msg, "step"), _float(msg, "t")
+        values: list[Any] = []
+        for c in STATE_COLUMNS:
+            if c.default is not None and c.name not in msg:
+                values.append(c.default)
+            elif c.integer:
+                values.append(_int(msg, c.name))
+            elif c.width == 1:
+                values.append(_float(msg, c.name))
+            else:
+                v = _vector(msg, c.name, cables if c.width is None else c.width)
+                if c.width is None:
+                    cables = len(v)  # the first per-cable column tells the others their length
+                values.append(v)
+        return cls(step, t, *values)
+
+
+_STATE_CODE = tuple((c.name, int if c.integer else float if c.width == 1 else _floats)  # how each is packed
+                    for c in STATE_COLUMNS)
+
+
+def _state_block(msg: dict[Any, Any], n: int, cables: int | None) -> tuple[list[list[Any]], int | None]:
+    """The state columns of a telemetry block of ``n`` states (flat arrays on the wire), and the cable count."""
+    columns: list[list[Any]] = []
+    for c in STATE_COLUMNS:
+        if c.integer:
+            columns.append(_ints(msg, c.name, n))
+            continue
+        if c.width == 1:
+            columns.append(list(_vector(msg, c.name, n)))
+            continue
+        width = cables if c.width is None else c.width
+        rows: list[tuple[float, ...]] = []
+        if n:
+            rows = _rows(msg, c.name, n, width)
+        else:
+            _vector(msg, c.name, 0)  # an empty block: an empty array
+        if c.width is None and cables is None and rows:
+            cables = len(rows[0])
+        columns.append(rows)
+    return columns, cables
 
 
 @dataclass(frozen=True, slots=True)
@@ -460,9 +487,9 @@ class Telemetry:
         s, c, r = self.states, self.commands, self.sensors
         kind = c[0].kind if c else "tensions"
         msg: dict[str, Any] = {
-            "step": [x.step for x in s], "t": [x.t for x in s], "pose": _flat([x.pose for x in s]),
-            "twist": _flat([x.twist for x in s]), "cable_lengths": _flat([x.cable_lengths for x in s]),
-            "tensions": _flat([x.tensions for x in s]), "clamped": [x.clamped for x in s],
+            "step": [x.step for x in s], "t": [x.t for x in s],
+            **{c.name: [getattr(x, c.name) for x in s] if c.width == 1 else _flat([getattr(x, c.name) for x in s])
+               for c in STATE_COLUMNS},
             "command": {
                 "step": [x.step for x in c], "t": [x.t for x in c], "kind": kind,
                 "values": _flat([x.values for x in c]),
@@ -485,11 +512,9 @@ class Telemetry:
         steps = _ints(msg, "step")
         n = len(steps)
         t = _vector(msg, "t", n)
-        lengths = _rows(msg, "cable_lengths", n, cables) if n else []
-        m = len(lengths[0]) if lengths else (cables or 0)
-        pose, twist, tensions = _rows(msg, "pose", n, 7), _rows(msg, "twist", n, 6), _rows(msg, "tensions", n, m)
-        clamped = _ints(msg, "clamped", n)
-        states = tuple(State(steps[i], t[i], pose[i], twist[i], lengths[i], tensions[i], clamped[i]) for i in range(n))
+        columns, cables = _state_block(msg, n, cables)
+        m = cables or 0
+        states = tuple(itertools.starmap(State, zip(steps, t, *columns, strict=True)))
         c = _field(msg, "command")
         if not isinstance(c, dict):
             raise ProtocolError("command: expected a map")

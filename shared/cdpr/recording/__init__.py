@@ -4,16 +4,18 @@ The entity paths, the blueprint, the static scene and the Rerun sinks are in :mo
 and Foxglove in :mod:`cdpr.recording.mcap` and :mod:`cdpr.recording.live`; this package gathers their names.
 """
 
-from cdpr.recording.scene import (
+from cdpr.protocol.streams import (
     ACTUAL_POSITION,
     ACTUAL_QUATERNION,
     ACTUAL_TWIST,
+    CABLE_LENGTHS,
+    CLAMPED,
+)
+from cdpr.recording.scene import (
     APP_ID,
     AXES,
     AXIS_COLORS,
-    CABLE_LENGTHS,
     CABLES,
-    CLAMPED,
     CLOCK,
     CLOCK_STATE,
     COMMAND_FEASIBLE,
@@ -69,6 +71,7 @@ from cdpr.recording.scene import (
     rerun_binary,
     scene_blueprint,
     send_cables,
+    send_columns_series,
     send_path,
     send_poses,
     send_scalars,
@@ -147,6 +150,7 @@ __all__ = [
     "rerun_binary",
     "scene_blueprint",
     "send_cables",
+    "send_columns_series",
     "send_path",
     "send_poses",
     "send_scalars",

@@ -35,6 +35,14 @@ from numpy.typing import ArrayLike, NDArray
 
 from cdpr.errors import InputError
 from cdpr.mechanics.robot import Robot
+from cdpr.protocol.streams import (
+    LENGTHS,
+    PLATFORM_STATE,
+    STATE_COLUMNS,
+    TENSIONS,
+    ChannelField,
+    Column,
+)
 from cdpr.recording.scene import anchor_labels, cable_strips, tension_colors
 
 if TYPE_CHECKING:
@@ -52,9 +60,9 @@ DESIRED_POSE = "/desired/pose"  # foxglove.FrameTransform world → desired (3D 
 SCENE_STATIC = "/scene/static"  # foxglove.SceneUpdate, once at t = 0: frame, anchors, platform, ghost, plan
 SCENE_CABLES = "/scene/cables"  # foxglove.SceneUpdate: the m cables coloured by tension (3D rate)
 SCENE_PATH = "/scene/path"  # foxglove.SceneUpdate: the path travelled so far (path rate)
-PLATFORM_STATE = "/platform/state"  # JSON every state: position, quaternion, twist, clamped
-TENSIONS = "/cables/tensions"  # JSON every state but 0: applied tensions, tmin, tmax
-LENGTHS = "/cables/lengths"  # JSON every state: cable lengths
+# PLATFORM_STATE (/platform/state), TENSIONS (/cables/tensions, every state but 0, with tmin and tmax) and
+# LENGTHS (/cables/lengths): the state's channels, whose fields are declared with the state's columns
+# (cdpr.protocol.streams.STATE_COLUMNS)
 SETPOINT = "/setpoint"  # JSON every setpoint: desired position and quaternion
 ERROR = "/error"  # JSON every step with a state and a setpoint: position and orientation errors
 COMMAND = "/command"  # JSON every command: commanded values, feasibility, TDA status, solve time, loop lag
@@ -86,24 +94,46 @@ def _schema(title: str, description: str, properties: Mapping[str, Any]) -> dict
     }
 
 
+# The state's channels: schema title and description, and the fields every message of the channel repeats.
+_STATE_CHANNELS = {
+    PLATFORM_STATE: ("cdpr.PlatformState", "the sim's state of the platform", {}),
+    TENSIONS: ("cdpr.CableTensions", "tensions the sim applied over [t − dt, t]", {
+        "tmin": {**_NUM, "description": "lower tension limit, N"},
+        "tmax": {**_NUM, "description": "upper tension limit, N"},
+    }),
+    LENGTHS: ("cdpr.CableLengths", "geometric cable lengths ‖a_i − t − R b_i‖", {}),
+}
+
+
+def state_channels() -> dict[str, list[tuple[Column, ChannelField]]]:
+    """Each JSON channel of the state and the column parts it carries (STATE_COLUMNS' ``fields``), in order."""
+    out: dict[str, list[tuple[Column, ChannelField]]] = {}
+    for c in STATE_COLUMNS:
+        for f in c.fields:
+            out.setdefault(f.channel, []).append((c, f))
+    return out
+
+
+def _state_schemas(m: int) -> dict[str, dict[str, Any]]:
+    schemas = {}
+    for channel, parts in state_channels().items():
+        title, description, constants = _STATE_CHANNELS.get(
+            channel, (f"cdpr.{channel.strip('/').replace('/', '.')}", "", {}))
+        properties: dict[str, Any] = {}
+        for c, f in parts:
+            width = (c.size(m) if f.end is None else f.end) - f.first
+            text = f"{c.doc}{f', {c.unit}' if c.unit else ''}"
+            properties[f.name] = ({**_INT, "description": text} if c.integer
+                                  else {**_NUM, "description": text} if c.width == 1 else _vec(width, text))
+        schemas[channel] = _schema(title, description, {**properties, **constants})
+    return schemas
+
+
 def json_schemas(m: int) -> dict[str, dict[str, Any]]:
     """The JSON schema of every JSON channel, for a robot of ``m`` cables."""
     cables = f"{m} values, cable 0 first"
     return {
-        PLATFORM_STATE: _schema("cdpr.PlatformState", "the sim's state of the platform", {
-            "position": _vec(3, "[x, y, z] of the centre of mass, m, world frame"),
-            "quaternion": _vec(4, "[qx, qy, qz, qw], platform to world"),
-            "twist": _vec(6, "[vx, vy, vz, wx, wy, wz], m/s and rad/s, world frame"),
-            "clamped": {**_INT, "description": "commands clamped by the sim so far"},
-        }),
-        TENSIONS: _schema("cdpr.CableTensions", "tensions the sim applied over [t − dt, t]", {
-            "tensions": _vec(m, f"N, {cables}"),
-            "tmin": {**_NUM, "description": "lower tension limit, N"},
-            "tmax": {**_NUM, "description": "upper tension limit, N"},
-        }),
-        LENGTHS: _schema("cdpr.CableLengths", "geometric cable lengths ‖a_i − t − R b_i‖", {
-            "lengths": _vec(m, f"m, {cables}"),
-        }),
+        **_state_schemas(m),
         SETPOINT: _schema("cdpr.Setpoint", "the trajectory's desired pose", {
             "position": _vec(3, "[x, y, z], m"),
             "quaternion": _vec(4, "[qx, qy, qz, qw]"),
@@ -381,21 +411,27 @@ class FoxgloveSink:
         self.last_ns = max(self.last_ns, max(ns))
 
     # -- rows -------------------------------------------------------------------------------------
-    def states(self, step: ArrayLike, t: ArrayLike, pose: ArrayLike, twist: ArrayLike, lengths: ArrayLike,
-               tensions: ArrayLike, clamped: ArrayLike, scene: ArrayLike) -> None:
-        """State rows; ``scene`` marks the rows drawn in 3D (pose transform and cables)."""
+    def states(self, step: ArrayLike, t: ArrayLike, columns: Mapping[str, ArrayLike], scene: ArrayLike) -> None:
+        """State rows: ``columns`` holds each column of STATE_COLUMNS, (n, width) — (n,) for a one-number
+        column; ``scene`` marks the rows drawn in 3D (pose transform and cables)."""
         k = np.asarray(step, dtype=np.int64)
         if not len(k):
             return
-        tt, p = np.asarray(t, dtype=float), np.asarray(pose, dtype=float).reshape(-1, 7)
-        tw, ln = np.asarray(twist, dtype=float), np.asarray(lengths, dtype=float)
-        f, cl = np.asarray(tensions, dtype=float), np.asarray(clamped)
-        self._emit(PLATFORM_STATE, tt, lambda: json_rows(
-            {"step": k, "t": tt, "position": p[:, :3], "quaternion": p[:, 3:], "twist": tw, "clamped": cl}))
-        self._emit(LENGTHS, tt, lambda: json_rows({"step": k, "t": tt, "lengths": ln}))
-        applied = k > 0  # state 0: nothing applied yet
-        self._emit(TENSIONS, tt[applied], lambda: json_rows(
-            {"step": k[applied], "t": tt[applied], "tensions": f[applied]}, self._limits))
+        tt = np.asarray(t, dtype=float)
+        values = {name: np.asarray(v) for name, v in columns.items()}
+        for channel, parts in state_channels().items():
+            rows = k >= max(c.since for c, _ in parts)
+
+            def make(rows: NDArray[np.bool_] = rows, parts: list[tuple[Column, ChannelField]] = parts,
+                     channel: str = channel) -> list[bytes]:
+                fields = {"step": k[rows], "t": tt[rows]}
+                for c, f in parts:
+                    v = values[c.name][rows]
+                    fields[f.name] = v if v.ndim == 1 else v[:, f.first:f.end]
+                return json_rows(fields, self._limits if channel == TENSIONS else None)
+
+            self._emit(channel, tt[rows], make)
+        p, f = values["pose"].astype(float).reshape(-1, 7), values["tensions"].astype(float)
         sc = np.asarray(scene, dtype=bool)
         self._emit(PLATFORM_POSE, tt[sc], lambda: self._transforms(PLATFORM_FRAME, tt[sc], p[sc]))
         self._emit(SCENE_CABLES, tt[sc], lambda: self._cables(tt[sc], p[sc], f[sc]))

@@ -26,6 +26,14 @@ from numpy.typing import ArrayLike, NDArray
 from cdpr.errors import InputError
 from cdpr.mechanics.robot import Robot
 from cdpr.mechanics.rotation import matrix_to_quat, quat_matrix
+from cdpr.protocol.streams import (
+    ACTUAL_POSITION,
+    ACTUAL_QUATERNION,
+    ACTUAL_TWIST,
+    CABLE_LENGTHS,
+    TENSION_SERIES,
+    Column,
+)
 
 APP_ID = "cdpr"
 RECORDING_ID_ENV = "CDPR_RECORDING_ID"  # forces the recording id (e.g. to merge several recorders)
@@ -55,11 +63,8 @@ WORKSPACE_INFEASIBLE = "world/workspace/infeasible"  # static faint points: the 
 # Time series (every step)
 DESIRED_POSITION = "desired/position"  # [x, y, z] of the setpoint, m
 DESIRED_QUATERNION = "desired/quaternion"  # [qx, qy, qz, qw]
-ACTUAL_POSITION = "actual/position"  # [x, y, z] of the sim state, m
-ACTUAL_QUATERNION = "actual/quaternion"
-ACTUAL_TWIST = "actual/twist"  # [vx, vy, vz, wx, wy, wz], m/s and rad/s
-CABLE_LENGTHS = "actual/cable_lengths"  # m values, m
-CLAMPED = "actual/clamped"  # commands clamped by the sim so far
+# the state's series (actual/position, actual/quaternion, actual/twist, actual/cable_lengths, actual/clamped,
+# tension/cable_<i>): declared with the state's columns, cdpr.protocol.streams
 POSITION_ERROR = "error/position"  # view origin of the two below
 POSITION_ERROR_AXES = "error/position/axes"  # desired − actual, [x, y, z], m
 POSITION_ERROR_NORM = "error/position/norm"  # ‖desired − actual‖, m
@@ -103,7 +108,7 @@ DEFAULT_VIEWER_URL = "rerun+http://127.0.0.1:9876/proxy"  # where `rerun` (and a
 
 def tension_series(i: int) -> str:
     """Entity of cable ``i``'s tension (0-based, as in the robot file and on the wire)."""
-    return f"{TENSION}/cable_{i}"
+    return TENSION_SERIES.format(i=i)
 
 
 def clock_series(stat: str) -> str:
@@ -394,6 +399,26 @@ def send_scalars(rec: Recording, path: str, steps: ArrayLike, times: ArrayLike, 
     if v.ndim == 2:
         cols = cols.partition(np.full(n, v.shape[1]))
     rec.send_columns(path, indexes=time_columns(steps, times), columns=cols)
+
+
+def send_columns_series(rec: Recording, columns: Sequence[Column], steps: ArrayLike, times: ArrayLike,
+                        values: Mapping[str, NDArray[Any]]) -> None:
+    """Each column's Rerun time series (:class:`cdpr.protocol.streams.Series`) for rows ``values[name]``
+    (n, width) — (n,) for a one-number column — at ``steps``/``times``, from each column's ``since`` step."""
+    k, t = np.asarray(steps), np.asarray(times, dtype=float)
+    for c in columns:
+        rows = k >= c.since
+        if not rows.any():
+            continue
+        v = np.asarray(values[c.name], dtype=float)[rows]
+        v = v.reshape(len(v), -1)
+        for series in c.series:
+            part = v[:, series.first:series.end]
+            if series.split:
+                for i in range(part.shape[1]):
+                    send_scalars(rec, series.path.format(i=series.first + i), k[rows], t[rows], part[:, i])
+            else:
+                send_scalars(rec, series.path, k[rows], t[rows], part[:, 0] if part.shape[1] == 1 else part)
 
 
 def send_text(

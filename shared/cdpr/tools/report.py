@@ -21,6 +21,7 @@ from numpy.typing import NDArray
 from cdpr import recording
 from cdpr.errors import InputError
 from cdpr.protocol import Command, Setpoint, State
+from cdpr.protocol.streams import STATE_COLUMNS
 from cdpr.tools.metrics import RunMetrics
 
 FIGURE_SIZE = (12.0, 8.0)  # inches; at FIGURE_DPI this is the PNG's size in pixels
@@ -127,39 +128,43 @@ def read_recording(path: str | Path) -> RecordingData:
     return RecordingData(str(p), recordings[0].recording_id, session, series, blueprints)
 
 
+def state_columns(data: RecordingData, steps: NDArray[np.int64], m: int) -> dict[str, NDArray[Any]]:
+    """The state's columns (STATE_COLUMNS) at ``steps``, read back from their recorded series: (n, width),
+    (n,) for a one-number column, zeros before a column's ``since`` step. KeyError(step) where a series
+    lacks one of the steps."""
+    out: dict[str, NDArray[Any]] = {}
+    for c in STATE_COLUMNS:
+        size = c.size(m)
+        values = np.zeros((len(steps), size))
+        rows = steps >= c.since
+        at = steps[rows]
+        for s in c.series if rows.any() else ():
+            end = size if s.end is None else s.end
+            if s.split:
+                for i in range(s.first, end):
+                    values[rows, i] = data.get(s.path.format(i=i)).at(at)[:, 0]
+            else:
+                values[rows, s.first:end] = data.get(s.path).at(at)
+        out[c.name] = values[:, 0].astype(np.int64) if c.integer else values[:, 0] if c.width == 1 else values
+    return out
+
+
 def metrics_from(data: RecordingData) -> RunMetrics:
     """The recorded streams as protocol messages in a :class:`RunMetrics` (the run's own definitions)."""
     dt = float(data.session["dt"])
     m = int(data.session["cables"])
     metrics = RunMetrics()
-    pos = data.get(recording.ACTUAL_POSITION)
-    steps = pos.step
+    steps = data.get(recording.ACTUAL_POSITION).step  # the steps with a state
     if len(steps):
         try:
-            quat = data.get(recording.ACTUAL_QUATERNION).at(steps)
-            twist = data.get(recording.ACTUAL_TWIST).at(steps)
-            lengths = data.get(recording.CABLE_LENGTHS).at(steps)
-            clamped = data.get(recording.CLAMPED).at(steps)[:, 0]
-            later = steps[steps > 0]
-            tensions = np.zeros((len(steps), m))
-            tensions[steps > 0] = np.column_stack(
-                [data.get(recording.tension_series(i)).at(later)[:, 0] for i in range(m)]
-            )
+            columns = state_columns(data, steps, m)
         except KeyError as exc:
             raise InputError(
                 f"{data.path}: incomplete recording: no state data for step {exc.args[0]}"
             ) from None
-        for j, k in enumerate(steps.tolist()):
-            state = State(
-                k,
-                k * dt,
-                (*pos.values[j].tolist(), *quat[j].tolist()),
-                tuple(twist[j].tolist()),
-                tuple(lengths[j].tolist()),
-                tuple(tensions[j].tolist()),
-                int(clamped[j]),
-            )
-            metrics.add_state(state)
+        rows = [v.tolist() if v.ndim == 1 else [tuple(row) for row in v.tolist()] for v in columns.values()]
+        for k, *values in zip(steps.tolist(), *rows, strict=True):
+            metrics.add_state(State(k, k * dt, *values))
     desired = data.get(recording.DESIRED_POSITION)
     if len(desired.step):
         try:

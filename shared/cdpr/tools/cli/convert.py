@@ -147,24 +147,18 @@ def _feed(
     sink: Any, data: Any, extras: _Extras, dt: float, m: int, scene_every: int, path_every: int
 ) -> dict[str, int]:
     from cdpr import recording
+    from cdpr.tools.report import state_columns
 
     get = data.get
-    pos = get(recording.ACTUAL_POSITION)
-    k = pos.step
+    k = get(recording.ACTUAL_POSITION).step  # the steps with a state
     try:
-        tensions = np.zeros((len(k), m))
-        later = k > 0
-        if later.any():
-            tensions[later] = np.column_stack([get(recording.tension_series(i)).at(k[later])[:, 0] for i in range(m)])
-        pose = np.column_stack([pos.values, get(recording.ACTUAL_QUATERNION).at(k)])
-        twist = get(recording.ACTUAL_TWIST).at(k)
-        lengths = get(recording.CABLE_LENGTHS).at(k)
-        clamped = get(recording.CLAMPED).at(k)[:, 0]
+        columns = state_columns(data, k, m)
     except KeyError as exc:
         raise InputError(f"{data.path}: incomplete recording: no state data for step {exc.args[0]}") from None
     final = int(k[-1]) if len(k) else -1
     scene = (k % scene_every == 0) | (k == final)
-    sink.states(k, k * dt, pose, twist, lengths, tensions, clamped, scene)
+    sink.states(k, k * dt, columns, scene)
+    pose = columns["pose"]
 
     desired = get(recording.DESIRED_POSITION)
     d = desired.step

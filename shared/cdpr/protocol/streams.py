@@ -1,0 +1,89 @@
+"""The per-step streams of a session, declared once: each column of the sim's state with its width, unit and
+meaning, where the recording plots it (Rerun time series) and where the MCAP file carries it (Foxglove JSON
+channels).
+
+Everything that handles the state stream is derived from :data:`STATE_COLUMNS`: the ``sim/state`` message and
+the states of a ``sim/telemetry`` block (:mod:`cdpr.protocol.messages`), the recorder's rows and Rerun series
+(:mod:`cdpr_recorder`), the MCAP schemas and rows (:mod:`cdpr.recording.mcap`), and reading a recording back
+(``cdpr report``, ``cdpr convert``). A new state field is one column here, its attribute of
+:class:`cdpr.protocol.messages.State` (with a default, so that older senders stay valid), and its producer
+in the sim (docs/protocol.md, "Adding a state field").
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Any
+
+# Rerun entity paths of the state's time series (the recording's layout: docs/recording.md)
+ACTUAL_POSITION = "actual/position"  # [x, y, z] of the sim state, m
+ACTUAL_QUATERNION = "actual/quaternion"  # [qx, qy, qz, qw]
+ACTUAL_TWIST = "actual/twist"  # [vx, vy, vz, wx, wy, wz], m/s and rad/s
+CABLE_LENGTHS = "actual/cable_lengths"  # m values, m
+CLAMPED = "actual/clamped"  # commands clamped by the sim so far
+TENSION_SERIES = "tension/cable_{i}"  # one entity per cable (the tension panel's series), N
+
+# Foxglove JSON channels of the state (the MCAP file and the live server: docs/recording.md)
+PLATFORM_STATE = "/platform/state"
+LENGTHS = "/cables/lengths"
+TENSIONS = "/cables/tensions"
+
+
+@dataclass(frozen=True)
+class Series:
+    """A Rerun Scalars time series showing part ``[first, end)`` of a column's row (``end`` None: to its end).
+    A ``path`` with ``{i}`` is one entity per number of the part (``tension/cable_0``, …)."""
+
+    path: str
+    first: int = 0
+    end: int | None = None
+
+    @property
+    def split(self) -> bool:
+        return "{i}" in self.path
+
+
+@dataclass(frozen=True)
+class ChannelField:
+    """Part ``[first, end)`` of a column's row as the field ``name`` of the messages of the JSON ``channel``."""
+
+    channel: str
+    name: str
+    first: int = 0
+    end: int | None = None
+
+
+@dataclass(frozen=True)
+class Column:
+    """One field of a per-step stream."""
+
+    name: str  # on the wire and as the message's attribute
+    width: int | None  # numbers per step; None: one per cable (m)
+    unit: str
+    doc: str
+    integer: bool = False  # a count: one whole number (width 1), an int on the wire and in the message
+    default: Any = None  # its value when a ``sim/state`` leaves it out (None: the field is required)
+    since: int = 0  # the first step with a value to record (tensions: those applied over the step before)
+    series: tuple[Series, ...] = ()
+    fields: tuple[ChannelField, ...] = ()
+
+    def size(self, m: int) -> int:
+        """Numbers per step for a robot of ``m`` cables."""
+        return m if self.width is None else self.width
+
+
+STATE_COLUMNS: tuple[Column, ...] = (
+    Column("pose", 7, "m, 1", "x, y, z of the centre of mass and the quaternion qx, qy, qz, qw (platform to "
+           "world), world frame",
+           series=(Series(ACTUAL_POSITION, 0, 3), Series(ACTUAL_QUATERNION, 3, 7)),
+           fields=(ChannelField(PLATFORM_STATE, "position", 0, 3), ChannelField(PLATFORM_STATE, "quaternion", 3, 7))),
+    Column("twist", 6, "m/s, rad/s", "vx, vy, vz, wx, wy, wz, world frame",
+           series=(Series(ACTUAL_TWIST),), fields=(ChannelField(PLATFORM_STATE, "twist"),)),
+    Column("cable_lengths", None, "m", "the geometric cable lengths ‖a_i − t − R b_i‖, cable 0 first",
+           series=(Series(CABLE_LENGTHS),), fields=(ChannelField(LENGTHS, "lengths"),)),
+    Column("tensions", None, "N", "the tensions the sim applied over [t − dt, t] (zeros at step 0), cable 0 first",
+           since=1, series=(Series(TENSION_SERIES),), fields=(ChannelField(TENSIONS, "tensions"),)),
+    Column("clamped", 1, "", "commands clamped by the sim so far", integer=True, default=0,
+           series=(Series(CLAMPED),), fields=(ChannelField(PLATFORM_STATE, "clamped"),)),
+)
+STATE = {c.name: c for c in STATE_COLUMNS}
