@@ -63,7 +63,14 @@ def test_an_unheard_tick_0_is_repeated_at_once_and_nothing_runs_ahead_of_state_1
             sub.undeclare()
             telemetry.undeclare()
         clk.send_signal(signal.SIGTERM)
-        _, err = clk.communicate(timeout=30)
+        try:
+            _, err = clk.communicate(timeout=30)
+        except subprocess.TimeoutExpired:
+            clk.send_signal(signal.SIGUSR1)  # every thread's stack (faulthandler), for the report
+            time.sleep(1.0)
+            clk.kill()
+            _, err = clk.communicate()
+            raise AssertionError(f"the clock ignored SIGTERM for 30 s:\n{err}") from None
     finally:
         if clk.poll() is None:
             clk.kill()

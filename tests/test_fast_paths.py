@@ -210,6 +210,34 @@ def test_dispatcher_handles_what_idle_published_and_nothing_after_a_signal() -> 
     assert node.seen == ["a", "from idle"]
 
 
+class _Chatty(_Recorder):
+    """Publishes to its own process from every idle() (as the clock's status does); on the second, the stop
+    signal comes (as SIGTERM to a paused clock did, in the middle of a handler)."""
+
+    stop: StopFlag | None = None
+
+    def idle(self, now: float) -> None:
+        super().idle(now)
+        if self.idles == 2 and self.stop is not None:
+            self.stop.set()
+        if self.deliver is not None and self.idles < 1000:
+            self.deliver(Event("x", b"", "status", 0.0))
+
+
+def test_a_signal_in_the_middle_of_a_handler_ends_it_though_idle_keeps_publishing() -> None:
+    """The events queued after a signal are not handled; the handler must then not go on calling idle() until
+    they are (it held the dispatcher's lock for ever, and the main thread, closing, waited for it)."""
+    node, stop = _Chatty(), StopFlag()
+    dispatch = _Dispatcher(node, node.handle, threading.Event(), stop)
+    node.deliver, node.stop = dispatch, stop
+    worker = threading.Thread(target=dispatch, args=(Event("x", b"", "first", 0.0),), daemon=True)
+    worker.start()
+    worker.join(30.0)
+    assert not worker.is_alive(), f"the handler is still running after {node.idles} idle() calls"
+    assert node.idles == 2
+    dispatch.close()  # the main thread's close takes the lock: not held any more
+
+
 def test_inbox_handler_runs_on_zenohs_thread_message_after_message() -> None:
     endpoint = f"tcp/127.0.0.1:{free_port()}"
     threads: list[str] = []

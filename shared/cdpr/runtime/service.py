@@ -225,7 +225,7 @@ class _Dispatcher:
                     self._drain()
                     now = time.monotonic()
                     node.idle(now)  # which may publish to this very process: drained in the next turn
-                    if not self._backlog or node.done:
+                    if not self._backlog or node.done or self._stop:  # (after a signal nothing is drained)
                         break
                 if node.done or node.timeout(now) < node.idle_period:
                     self._wake.set()  # the main thread has a deadline to meet, or the end to handle
