@@ -679,11 +679,8 @@ def test_a_cable_model_is_its_module_and_a_row_in_each_table(monkeypatch: pytest
     from cdpr_sim import models
     from conftest import last_json_line
 
-    class TwinSim(PlatformSim):
-        pass
-
     monkeypatch.setitem(scenario_config.CABLE_MODELS, "twin", scenario_config.CableModel("the ideal cable again"))
-    monkeypatch.setitem(models.SIM_MODELS, "twin", TwinSim)
+    monkeypatch.setitem(models.SIM_MODELS, "twin", f"{__name__}:TwinSim")
     summaries = {}
     for name in ("ideal", "twin"):
         scenario = load_scenario("caroca_15kg", {"duration": 0.2, "sim": {"cable_model": name}})
@@ -693,3 +690,7 @@ def test_a_cable_model_is_its_module_and_a_row_in_each_table(monkeypatch: pytest
     assert isinstance(make_sim(load_scenario("caroca_15kg", {"sim": {"cable_model": "twin"}})), TwinSim)
     assert summaries["twin"]["steps"] == summaries["ideal"]["steps"] == 200
     assert summaries["twin"]["state_digest"] == summaries["ideal"]["state_digest"]
+
+
+class TwinSim(PlatformSim):
+    """The test-only cable model of the test above: the ideal cables' physics under another name."""

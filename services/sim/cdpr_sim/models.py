@@ -1,17 +1,15 @@
 """The scenario's cable model, chosen: the module above the models (:mod:`cdpr_sim.core` is below them).
 
-Every model has the interface of :class:`~cdpr_sim.core.SimModel`.
+Every model has the interface of :class:`~cdpr_sim.core.SimModel` and a ``from_scenario`` class method.
 """
 
 from __future__ import annotations
 
-from typing import Protocol
+import importlib
+from typing import Protocol, cast
 
 from cdpr.config.scenario import Scenario
-from cdpr_sim.core import PlatformSim, SimModel
-from cdpr_sim.elastic import ElasticSim
-from cdpr_sim.sag import SagSim
-from cdpr_sim.ups import UpsSim
+from cdpr_sim.core import SimModel
 
 
 class _FromScenario(Protocol):
@@ -19,15 +17,22 @@ class _FromScenario(Protocol):
 
 
 # The sim's class of each cable model of cdpr.config.scenario.CABLE_MODELS (tests/test_cable_models.py: the same
-# names): a new cable model is its module, its row there (and its parameters' section), and its row here.
-SIM_MODELS: dict[str, _FromScenario] = {
-    "ideal": PlatformSim,
-    "ups": UpsSim,
-    "elastic": ElasticSim,
-    "sag": SagSim,
+# names), as "module:class" (only the scenario's model is imported: a sim's start-up does not pay for the
+# others): a new cable model is its module, its row there (and its parameters' section), and its row here.
+SIM_MODELS: dict[str, str] = {
+    "ideal": "cdpr_sim.core:PlatformSim",
+    "ups": "cdpr_sim.ups:UpsSim",
+    "elastic": "cdpr_sim.elastic:ElasticSim",
+    "sag": "cdpr_sim.sag:SagSim",
 }
+
+
+def sim_class(cable_model: str) -> _FromScenario:
+    """The sim's class for ``cable_model`` (a name of SIM_MODELS), imported."""
+    module, _, name = SIM_MODELS[cable_model].partition(":")
+    return cast(_FromScenario, getattr(importlib.import_module(module), name))
 
 
 def make_sim(scenario: Scenario) -> SimModel:
     """The physics of the scenario's cable model."""
-    return SIM_MODELS[scenario.cable_model].from_scenario(scenario)
+    return sim_class(scenario.cable_model).from_scenario(scenario)

@@ -75,9 +75,9 @@ import numpy as np
 from numpy.typing import ArrayLike
 
 from cdpr.config.scenario import Scenario, StretchSpec, WinchSpec
-from cdpr.mechanics.control import COMMAND_KINDS, CommandKind
 from cdpr.mechanics.dynamics import gravity_wrench, mass_matrix
 from cdpr.mechanics.kinematics import cable_geometry, inverse_kinematics
+from cdpr.mechanics.outputs import COMMAND_KINDS, CommandKind
 from cdpr.mechanics.robot import Robot
 from cdpr.mechanics.rotation import Array, cross_rows, readonly
 from cdpr.mechanics.tda import make_tda

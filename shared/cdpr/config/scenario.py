@@ -24,7 +24,8 @@ from cdpr.config.loading import Strict, parse_model, read_yaml, resolve, shipped
 from cdpr.config.robot import load_robot
 from cdpr.config.trajectory import TrajectorySpec
 from cdpr.errors import InputError
-from cdpr.mechanics.control import CommandKind, Gains, Variant
+from cdpr.mechanics.control import Gains, Variant
+from cdpr.mechanics.outputs import CommandKind
 from cdpr.mechanics.robot import GRAVITY, Robot
 from cdpr.mechanics.rotation import rpy_to_matrix
 from cdpr.mechanics.trajectory import Trajectory

@@ -20,7 +20,7 @@ from __future__ import annotations
 import math
 from collections.abc import Sequence
 from dataclasses import dataclass
-from typing import Literal, get_args
+from typing import Literal
 
 import numpy as np
 from numpy.typing import ArrayLike
@@ -30,10 +30,6 @@ from cdpr.mechanics.robot import GRAVITY, Robot
 from cdpr.mechanics.rotation import Array, orientation_error, quat_matrix
 
 Variant = Literal["6dof", "3dof"]
-# What a controller commands each step: cable tensions (N), or unstretched cable lengths (m) for winch-driven
-# cables (the sim's winch drives then hold them). The ``tensions``/``lengths`` field of controller/command.
-CommandKind = Literal["tensions", "lengths"]
-COMMAND_KINDS: tuple[CommandKind, ...] = get_args(CommandKind)
 
 
 @dataclass(frozen=True)

@@ -19,7 +19,7 @@ from typing import Any, Literal, get_args
 
 import msgpack
 
-from cdpr.mechanics.control import COMMAND_KINDS, CommandKind
+from cdpr.mechanics.outputs import COMMAND_KINDS, CommandKind
 from cdpr.protocol.streams import STATE_COLUMNS
 from cdpr.protocol.wiring import TOPICS, WIRING
 
