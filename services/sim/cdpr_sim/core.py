@@ -293,7 +293,7 @@ class PlatformSim:
 
     def encoder_lengths(self) -> Array:
         """(m,) the cable lengths (an ideal cable's encoder measures them exactly)."""
-        return self.state().cable_lengths
+        return self._snapshot().lengths  # (not state(): no quaternion to derive)
 
     def load_cell_tensions(self) -> Array:
         """(m,) the tensions applied over the last step."""

@@ -249,7 +249,7 @@ class UpsSim:
 
     def encoder_lengths(self) -> Array:
         """(m,) the legs' lengths."""
-        return self.state().cable_lengths
+        return self._snapshot().lengths  # (not state(): no quaternion to derive)
 
     def load_cell_tensions(self) -> Array:
         """(m,) the tensions applied over the last step."""
