@@ -193,7 +193,8 @@ def test_the_pose_transform_decodes_as_foxglove_protobuf(tmp_path: Path) -> None
     sink = fox.FoxgloveSink(robot, {"scenario": "x"}, mcap=tmp_path / "p.mcap")
     pose = np.array([[0.5, -0.25, 1.5, 0.0, 0.0, math.sin(0.3), math.cos(0.3)]])
     sink.states([10], [0.01], {"pose": pose, "twist": np.zeros((1, 6)), "cable_lengths": np.ones((1, robot.m)),
-                               "tensions": np.ones((1, robot.m)), "clamped": np.array([0])}, [True])
+                               "tensions": np.ones((1, robot.m)), "clamped": np.array([0]),
+                                   "command_age": np.array([0]), "watchdog": np.array([0])}, [True])
     sink.close()
     from mcap.reader import make_reader
 

@@ -46,10 +46,11 @@ COLUMN = '''    Column("energy", 1, "J", "translational kinetic energy of the pl
            series=(Series("actual/energy"),), fields=(ChannelField(PLATFORM_STATE, "energy"),)),
 )
 STATE = {c.name: c for c in STATE_COLUMNS}'''
-ATTRIBUTE = '''    clamped: int = 0  # commands clamped by the sim so far (optional on the wire, default 0)
+LAST = "    watchdog: int = 0  # 1 if the watchdog policy acted over the step before (instead of a command)"
+ATTRIBUTE = LAST + '''
     energy: float = 0.0  # J'''
 PRODUCER = '''                     tuple(lengths.tolist()), tuple(self._tensions.tolist()), clamped,
-                     0.5 * self.robot.mass * float(v @ v))'''
+                     energy=0.5 * self.robot.mass * float(v @ v))'''
 
 
 def _edit(path: Path, old: str, new: str) -> None:
@@ -71,8 +72,7 @@ def test_a_new_state_field_is_a_column_an_attribute_and_its_producer(tmp_path: P
     for folder in SOURCES:
         shutil.copytree(ROOT / folder, tree / folder, ignore=shutil.ignore_patterns("__pycache__"))
     _edit(tree / "shared/cdpr/protocol/streams.py", ")\nSTATE = {c.name: c for c in STATE_COLUMNS}", COLUMN)
-    _edit(tree / "shared/cdpr/protocol/messages.py",
-          "    clamped: int = 0  # commands clamped by the sim so far (optional on the wire, default 0)", ATTRIBUTE)
+    _edit(tree / "shared/cdpr/protocol/messages.py", LAST, ATTRIBUTE)
     _edit(tree / "services/sim/cdpr_sim/core.py",
           "                     tuple(lengths.tolist()), tuple(self._tensions.tolist()), clamped)", PRODUCER)
     assert sorted(_changed(tree)) == ["services/sim/cdpr_sim/core.py", "shared/cdpr/protocol/messages.py",

@@ -15,8 +15,14 @@ until the sim's state 1 shows that the whole loop is connected: the sim heard th
 controller heard the sim and the trajectory, the sim heard the controller. Zenoh delivers a
 publication only to the subscribers its session already knows of, and a peer that has just joined may
 learn of the others' subscribers a few milliseconds after the clock saw every liveliness token; until
-state 1 arrives the node repeats tick 0 at short intervals (:meth:`handshake_repeat_due`). In
-realtime mode the deadlines start from the arrival of state 1 (tick 1 is due then).
+state 1 arrives the node repeats tick 0 at short intervals (:meth:`handshake_repeat_due`).
+In realtime mode the deadlines start from the arrival of state 1 (tick 1 is due then).
+
+Free-running realtime (``free``, ``--sync free``): after the handshake the clock grants windows as in fast
+mode (at least :data:`FREE_AHEAD` seconds of steps ahead), marked ``free``; the sim paces each step to its
+own deadline and reports how late each one started (:meth:`ClockCore.on_lateness`), which replaces the
+ticks' lateness in the statistics. The command ages and the watchdog's steps of free-running and of a
+command latency come from the states (:meth:`ClockCore.on_ages`).
 """
 
 from __future__ import annotations
@@ -26,6 +32,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+FREE_AHEAD = 0.25  # s of steps granted ahead of the sim's last state in free-running realtime (at least)
+
 
 @dataclass
 class ClockCore:
@@ -33,6 +41,7 @@ class ClockCore:
     dt: float
     realtime: bool = False
     lookahead: int = 100
+    free: bool = False  # free-running realtime (module docstring)
     issued: int = -1  # highest tick issued
     reached: int = -1  # highest step whose state has been received
     paused: bool = True  # until every expected participant is there
@@ -50,6 +59,14 @@ class ClockCore:
     _latest: float = field(default=-math.inf, repr=False)  # the largest lateness
     _percentiles: dict[str, float] = field(default_factory=dict, repr=False)  # see stats()
     _percentiles_of: int = field(default=0, repr=False)  # how many ticks they were computed from
+    ages: list[int] = field(default_factory=list)  # how many steps had each command age (index: the age)
+    watchdog_steps: int = 0  # steps on which the sim's watchdog policy acted
+    window: list[tuple[float, bool]] = field(default_factory=list, repr=False)  # (time, late) of the last second
+
+    def __post_init__(self) -> None:
+        if self.free:
+            self.realtime = True
+            self.lookahead = max(self.lookahead, math.ceil(FREE_AHEAD / self.dt))
 
     @property
     def finished(self) -> bool:
@@ -65,13 +82,13 @@ class ClockCore:
             return None
         if k == 0:
             return 0, 0, True  # the handshake (module docstring)
-        if self.realtime:
+        if self.realtime and not self.free:
             if self.started_at is not None and now < self.deadline(k):
                 return None
             until = k
         else:
             until = max(k, min(self.total_steps - 1, self.reached + self.lookahead))
-        return k, until, until >= self.reached + self.lookahead
+        return k, until, until >= self.reached + self.lookahead and not self.free
 
     def issue(self, k: int, now: float, until: int | None = None) -> None:
         """Record the grant of steps ``k`` … ``until`` (default: ``k``) at ``now``."""
@@ -79,21 +96,49 @@ class ClockCore:
             self.started_at = self.base = now
             self.base_step = k
             self.last_progress = now
-        if self.realtime:
-            late = now - self.deadline(k)
-            self.lateness.append(late)
-            if late > self.dt:
-                self.late_ticks += 1
-            if late * 1e3 <= self.dt * 1e3:  # (in ms, as stats() reports it)
-                self._on_time += 1
-            self._latest = max(self._latest, late)
+        if self.realtime and not self.free:
+            self._record(now - self.deadline(k), now)
         self.issued = k if until is None else until
+
+    def _record(self, late: float, now: float) -> None:
+        self.lateness.append(late)
+        if late > self.dt:
+            self.late_ticks += 1
+        if late * 1e3 <= self.dt * 1e3:  # (in ms, as stats() reports it)
+            self._on_time += 1
+        self._latest = max(self._latest, late)
+        self.window.append((now, late > self.dt))
+
+    def on_lateness(self, lateness: list[float] | tuple[float, ...], now: float) -> None:
+        """Free-running: how late the sim started each of a block's steps (s)."""
+        for late in lateness:
+            self._record(late, now)
+
+    def on_ages(self, ages: list[int], watchdog: int) -> None:
+        """The command ages of a block's steps, and how many of them ran on the watchdog's policy."""
+        counts = self.ages
+        for age in ages:
+            if age >= len(counts):
+                counts.extend([0] * (age + 1 - len(counts)))
+            counts[age] += 1
+        self.watchdog_steps += watchdog
+
+    def late_share(self, now: float, span: float = 1.0) -> tuple[float, int]:
+        """The share of the ticks (steps, free-running) of the last ``span`` seconds that were late, and
+        how many there were."""
+        window = self.window
+        cut = 0
+        while cut < len(window) and window[cut][0] < now - span:
+            cut += 1
+        del window[:cut]
+        n = len(window)
+        return (sum(late for _, late in window) / n if n else 0.0), n
 
     def on_state(self, k: int, now: float) -> bool:
         """Record state k; True if it is news (progress)."""
         if k <= self.reached:
             return False
-        if self.reached < 1 <= k and self.realtime:
+        if self.reached < 1 <= k and self.realtime and not self.free:
             self.base, self.base_step = now, 1  # the handshake is over: tick 1 is due now
         self.reached = k
         self.last_progress = now
@@ -114,7 +159,7 @@ class ClockCore:
     def wait_time(self, now: float) -> float | None:
         """Seconds until the next realtime deadline, if a tick is only waiting for the wall clock."""
         k = self.issued + 1
-        if (not self.realtime or self.paused or k >= self.total_steps
+        if (not self.realtime or self.free or self.paused or k >= self.total_steps
                 or (k > 0 and self.reached < max(1, k - self.lookahead))):
             return None
         if self.started_at is None:
@@ -173,4 +218,15 @@ class ClockCore:
                 self._percentiles_of = n
             out.update(self._percentiles, lateness_max_ms=self._latest * 1e3,
                        on_time_fraction=self._on_time / n)
+        if self.ages:
+            out.update(_age_stats(self.ages), watchdog_steps=self.watchdog_steps)
         return out
+
+
+def _age_stats(counts: list[int]) -> dict[str, int]:
+    """The median, 99th percentile and largest command age, in steps, from the count of each age."""
+    total = sum(counts)
+    cumulative = np.cumsum(counts)
+    p50, p99 = (int(np.searchsorted(cumulative, q * total)) for q in (0.5, 0.99))
+    return {"command_age_p50": p50, "command_age_p99": p99,
+            "command_age_max": max(i for i, c in enumerate(counts) if c)}

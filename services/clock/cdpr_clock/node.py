@@ -9,6 +9,7 @@ status once the sim has published its last state.
 from __future__ import annotations
 
 import argparse
+import statistics
 import time
 from collections.abc import Sequence
 from typing import Any
@@ -17,7 +18,7 @@ import zenoh
 
 from cdpr.config.scenario import Scenario
 from cdpr.errors import InputError
-from cdpr.protocol import SERVICES, ClockState, Keys, Status, Tick
+from cdpr.protocol import SERVICES, ClockState, Keys, Status, Telemetry, Tick
 from cdpr.protocol.session import encode_session_info
 from cdpr.runtime.service import Node
 from cdpr.runtime.transport import Event, Inbox, log
@@ -26,6 +27,7 @@ from cdpr_clock.core import ClockCore
 LINGER = 2.0  # seconds the clock keeps announcing "finished" while participants leave
 HANDSHAKE_FIRST_REPEAT = 0.05  # s: tick 0 is repeated after this, then twice as long each time (core docstring)
 WAIT_LOG_FIRST, WAIT_LOG_EVERY = 2.0, 5.0  # "waiting for ..." lines before the start: the first, then every
+PACE_CHECK_PERIOD = 0.25  # s between two looks at the share of late ticks of the last second (realtime)
 REJOIN_TIMEOUT = 60.0  # s a participant that left a session under way may take to come back (--rejoin-timeout)
 
 
@@ -40,6 +42,8 @@ class ClockNode(Node):
         expected: Sequence[str] = ("sim", "trajectory", "controller"),
         realtime: bool = False,
         lookahead: int = 100,
+        free: bool = False,
+        max_lateness: float = 0.0,
         resend_after: float = 1.0,
         status_period: float = 1.0,
         join_timeout: float = 0.0,
@@ -48,7 +52,14 @@ class ClockNode(Node):
         super().__init__(keys)
         self.scenario = scenario
         self.m = scenario.robot.m
-        self.core = ClockCore(scenario.total_steps, scenario.dt, realtime=realtime, lookahead=lookahead)
+        self.core = ClockCore(scenario.total_steps, scenario.dt, realtime=realtime, lookahead=lookahead, free=free)
+        sim = scenario.spec.sim
+        self.watchdog = sim.watchdog
+        self.ages = free or sim.command_latency is not None  # the states carry command ages to count
+        self.max_lateness = max_lateness  # s: abort when a tick (a step, free-running) is later (0: never)
+        self.last_pace_check = 0.0
+        self.diagnosed = False  # the one-line diagnosis of a lock-step realtime session falling behind
+        self.lags: list[float] = []  # the sim's wait for each command (telemetry), since the last status
         self.expected = tuple(expected)
         self.present: set[str] = set()
         self.resend_after = resend_after
@@ -71,6 +82,12 @@ class ClockNode(Node):
     def add_arguments(cls, parser: argparse.ArgumentParser) -> None:
         g = parser.add_argument_group("clock")
         g.add_argument("--mode", choices=("fast", "realtime"), default="fast", help="(default: %(default)s)")
+        g.add_argument("--sync", choices=("lock", "free"), default="lock",
+                       help="realtime: lock (every step waits for its command: lock-step) or free (the sim runs "
+                            "on the wall clock with the newest command; docs/realtime.md) (default: %(default)s)")
+        g.add_argument("--max-lateness", type=float, default=0.0, metavar="S",
+                       help="realtime: abort (exit code 1) once a step is S seconds behind the wall clock "
+                            "(0: never; default: %(default)s)")
         g.add_argument("--expect", default="sim,trajectory,controller",
                        help="comma-separated participants to wait for (default: %(default)s)")
         g.add_argument("--lookahead", type=int, default=100, metavar="STEPS",
@@ -95,16 +112,27 @@ class ClockNode(Node):
             raise InputError(f"--lookahead: must be between 0 and 100000 steps, got {args.lookahead}")
         if not args.resend_after >= 0.01:
             raise InputError(f"--resend-after: must be at least 0.01 s, got {args.resend_after}")
-        for flag, value in (("--join-timeout", args.join_timeout), ("--rejoin-timeout", args.rejoin_timeout)):
+        if args.sync == "free" and args.mode != "realtime":
+            raise InputError("--sync free: free-running needs --mode realtime (fast mode is lock-step)")
+        for flag, value in (("--join-timeout", args.join_timeout), ("--rejoin-timeout", args.rejoin_timeout),
+                            ("--max-lateness", args.max_lateness)):
             if not value >= 0:
                 raise InputError(f"{flag}: must be 0 (no limit) or a number of seconds, got {value}")
         return cls(scenario, keys, expected=names, realtime=args.mode == "realtime", lookahead=args.lookahead,
-                   resend_after=args.resend_after, join_timeout=args.join_timeout,
-                   rejoin_timeout=args.rejoin_timeout)
+                   free=args.sync == "free", max_lateness=args.max_lateness, resend_after=args.resend_after,
+                   join_timeout=args.join_timeout, rejoin_timeout=args.rejoin_timeout)
 
     @property
     def missing(self) -> tuple[str, ...]:
         return tuple(s for s in self.expected if s not in self.present)
+
+    @property
+    def blocking(self) -> tuple[str, ...]:
+        """The missing participants the session pauses for: free-running, the sim runs on without a controller
+        (its watchdog acts), once the session has started."""
+        if self.core.free and self.core.started_at is not None:
+            return tuple(s for s in self.missing if s != "controller")
+        return self.missing
 
     scenario_checks = ("workspace",)  # the session's authority: a trajectory out of the workspace is refused
 
@@ -126,6 +154,12 @@ class ClockNode(Node):
             if block is None or not block.states:
                 return
             step = block.states[-1].step
+            if self.ages:
+                self.on_ages(block, now)
+            if block.lateness:
+                self.core.on_lateness(block.lateness, now)
+            if self.core.realtime and block.lags:
+                self.lags.extend(block.lags)
             if step < self.core.reached:
                 # Only a sim that started afresh goes back in time (a reconnecting sim, e.g. after a
                 # router restart, carries on from its step): the platform's state is lost.
@@ -152,16 +186,29 @@ class ClockNode(Node):
                     self._gone.setdefault(service, (now, self.core.reached))
         if self.finished_at is not None:
             return
-        if self.missing:
+        if self.blocking:
             if not self.core.paused:
                 self.core.pause(now)
-                self.set_state("paused", f"waiting for {', '.join(self.missing)}", now)
+                self.set_state("paused", f"waiting for {', '.join(self.blocking)}", now)
+        elif event.topic == "alive" and self.core.free and service == "controller" and not self.core.paused:
+            resend = self.core.pending()  # a controller back in a free-running session: the setpoints again
+            if resend is not None:
+                self.send_tick(resend[0], resend[1], now, resend=True)
         elif self.core.paused:
             resend = self.core.resume(now)
             if self.core.started_at is not None and resend is not None:
                 log(self.name, f"all participants back; resuming at step {self.core.reached}")
                 self.send_tick(resend[0], resend[1], now, resend=True)
             self.set_state("running", "", now)
+
+    def on_ages(self, block: Telemetry, now: float) -> None:
+        """Count the new states' command ages; the watchdog's abort policy ends the session."""
+        news = [s for s in block.states if s.step > max(self.core.reached, 0)]
+        tripped = [s.step for s in news if s.watchdog]
+        self.core.on_ages([s.command_age for s in news], len(tripped))
+        if tripped and self.watchdog.policy == "abort" and self.finished_at is None:
+            self.abort(f"the controller sent no new command for {self.watchdog.timeout_ms:g} ms (watchdog at step "
+                       f"{tripped[0] - 1}; policy abort)", now)
 
     # -- ticking ----------------------------------------------------------------------------------
     def timeout(self, now: float) -> float:
@@ -202,6 +249,11 @@ class ClockNode(Node):
                           f"repeating the grant of steps {pending[0]}-{pending[1]}")
                 self.send_tick(pending[0], pending[1], now, resend=True)
             self.core.last_progress = now
+        if self.core.realtime and now - self.last_pace_check >= PACE_CHECK_PERIOD:
+            self.last_pace_check = now
+            self.check_pace(now)
+            if self.finished_at is not None:
+                return
         if now - self.last_status >= self.status_period:
             self.publish_status(now)
 
@@ -216,7 +268,8 @@ class ClockNode(Node):
             self.core.resends += 1
         else:
             self.core.issue(first, now, until)
-        self._tick.put(Tick(first, first * self.core.dt, until, resend, flush or resend).encode())
+        free = self.core.free and until >= 1
+        self._tick.put(Tick(first, first * self.core.dt, until, resend, flush or resend, free).encode())
 
     # -- status -----------------------------------------------------------------------------------
     def set_state(self, state: ClockState, reason: str, now: float) -> None:
@@ -224,6 +277,42 @@ class ClockNode(Node):
         if reason:
             log(self.name, f"{state}: {reason}")
         self.publish_status(now)
+
+    def check_pace(self, now: float) -> None:
+        """Realtime: say once, in one line, when the session falls behind the wall clock, and what is slow;
+        abort past ``--max-lateness``."""
+        if not self.core.realtime or self.finished_at is not None or self.core.started_at is None:
+            return
+        share, n = self.core.late_share(now)
+        lags, self.lags = self.lags, []
+        if self.max_lateness > 0 and self.core.lateness and self.core.lateness[-1] > self.max_lateness:
+            self.abort(f"step {self.core.reached} is {self.core.lateness[-1]:.3f} s behind the wall clock "
+                       f"(--max-lateness {self.max_lateness:g} s)", now)
+            return
+        if self.diagnosed or n < 10 or share <= 0.1:
+            return
+        self.diagnosed = True
+        dt_ms = self.core.dt * 1e3
+        into = now - self.core.started_at - self.core.paused_time
+        what = (f"{share:.0%} of the {'steps' if self.core.free else 'ticks'} of the last second were late "
+                f"({into:.2f} s in, step {self.core.reached})")
+        if self.core.free:
+            log(self.name, f"free-running is falling behind the wall clock: {what}; the sim's steps take longer "
+                f"than dt = {dt_ms:g} ms (a loaded machine?)")
+            return
+        if lags:
+            lag = statistics.median(lags) * 1e3
+            if lag > 0.5 * dt_ms:
+                log(self.name, f"lock-step realtime is falling behind: {what}; after each state the sim waits "
+                    f"{lag:.2f} ms (median) for the controller's command (its round trip and answer), against "
+                    f"dt = {dt_ms:g} ms: use --sync free (commands then act a few steps late) or --mode fast")
+                return
+            log(self.name, f"lock-step realtime is falling behind: {what}; the controller answers in {lag:.2f} ms "
+                f"(median) of dt = {dt_ms:g} ms, so the sim's step or the clock is slow (a loaded machine?): "
+                "use --mode fast or a longer dt")
+            return
+        log(self.name, f"lock-step realtime is falling behind: {what} (dt = {dt_ms:g} ms): use --sync free or "
+            "--mode fast")
 
     def publish_status(self, now: float) -> None:
         assert self._status is not None

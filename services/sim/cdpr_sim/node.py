@@ -8,10 +8,20 @@ the clock asks for one). Every state, the command applied with it and the sensor
 report (``flush``, ``resend``); a slow loop sends one at least every :data:`TELEMETRY_PERIOD` seconds (the
 clock takes a long silence for a stall). Bad commands are dropped with a one-line log; out-of-range tensions are
 clamped to [0, tmax] and counted.
+
+Two variations (docs/realtime.md), both through :mod:`cdpr_sim.hold`:
+
+* a scenario ``sim.command_latency`` (lock-step): step k still waits for command k, then applies the newest
+  command whose delayed step has come;
+* free-running realtime (ticks marked ``free``): the sim no longer waits for commands. It integrates each
+  granted step at its own deadline, ``dt`` apart from the first free grant (or from the grant that ends a
+  wait for one: a pause), with the newest command it holds, or its watchdog policy; each step's lateness goes
+  into the telemetry. The main thread sleeps until the next deadline (:meth:`SimNode.timeout`).
 """
 
 from __future__ import annotations
 
+import dataclasses
 import time
 from typing import Any
 
@@ -22,6 +32,7 @@ from cdpr.config.scenario import Scenario
 from cdpr.protocol import Command, Keys, Sensors, State, Telemetry, Tick
 from cdpr.runtime.service import Node
 from cdpr.runtime.transport import Event, Inbox, log
+from cdpr_sim.hold import Applied, CommandHold, LatencyModel, StaticPolicy, watchdog_steps
 from cdpr_sim.models import make_sim
 from cdpr_sim.sensors import SensorConfig, SensorSuite
 
@@ -60,7 +71,22 @@ class SimNode(Node):
         self.block_commands: list[Command] = []
         self.block_lags: list[float] = []
         self.block_sensors: list[Sensors] = []
+        self.block_lateness: list[float] = []
         self._state_msg: State | None = None
+        # what acts on each step when commands may be late (cdpr_sim.hold): None in plain lock-step
+        spec = scenario.spec.sim
+        self.watchdog = spec.watchdog
+        self.latency = None if spec.command_latency is None else LatencyModel(spec.command_latency)
+        self.hold: CommandHold[Command] | None = None if self.latency is None else self._new_hold()
+        self.static = StaticPolicy(scenario.robot, scenario.variant, spec.watchdog.decay, scenario.output)
+        self.applied: Applied[Command] | None = None  # what acted on the last step (free, latency)
+        self.watchdog_active = False
+        self.free = False  # free-running realtime: set by the first free tick
+        self.base: float | None = None  # free: the wall time (monotonic) at which step base_step is due
+        self.base_step = 0
+
+    def _new_hold(self) -> CommandHold[Command]:
+        return CommandHold(watchdog_steps(self.watchdog.timeout_ms, self.scenario.dt))
 
     def declare(self, session: zenoh.Session, inbox: Inbox) -> list[Any]:
         self._pub, self._telemetry_pub = self.publishers["state"], self.publishers["telemetry"]
@@ -85,7 +111,10 @@ class SimNode(Node):
         if again and self._state_msg is not None and self._state_msg.step == self.step:
             msg = self._state_msg
         else:
-            msg = self._state_msg = self.sim.message(self.clamped)
+            msg = self.sim.message(self.clamped)
+            if (applied := self.applied) is not None and (applied.age or applied.watchdog):
+                msg = dataclasses.replace(msg, command_age=applied.age, watchdog=int(applied.watchdog))
+            self._state_msg = msg
         self._pub.put(msg.encode())
         self.published_at = time.monotonic()
         if self.published_step == self.step:
@@ -104,8 +133,10 @@ class SimNode(Node):
         if not self.block_states and self._state_msg is not None:
             self.block_states.append(self._state_msg)
         self._telemetry_pub.put(Telemetry(tuple(self.block_states), tuple(self.block_commands),
-                                          tuple(self.block_lags), tuple(self.block_sensors)).encode())
+                                          tuple(self.block_lags), tuple(self.block_sensors),
+                                          tuple(self.block_lateness)).encode())
         self.block_states, self.block_commands, self.block_lags, self.block_sensors = [], [], [], []
+        self.block_lateness = []
         self.flushed_at = time.monotonic()
 
     def on_tick(self, tick: Tick) -> None:
@@ -115,6 +146,15 @@ class SimNode(Node):
             self.publish_state()
             self.flush()
             return
+        if tick.free and not self.free:
+            self.free = True
+            if self.hold is None:
+                self.hold = self._new_hold()
+            if self.last_command is not None:  # the handshake's step, taken in lock-step
+                self.hold.offer(self.last_command, self.last_command.step, self.step - 1)
+        if self.free and tick.until > self.allowed and (self.base is None or self.step > self.allowed):
+            # the first free grant, or one that ends a wait for a grant (a pause): the deadlines start now
+            self.base, self.base_step = time.monotonic(), self.step
         if tick.until > self.allowed:
             self.allowed = tick.until
         if tick.flush:
@@ -129,7 +169,40 @@ class SimNode(Node):
             cmd, self.pending = self.pending, None
             self.on_command(cmd)
 
+    # -- free-running realtime --------------------------------------------------------------------
+    def deadline(self, k: int) -> float:
+        assert self.base is not None
+        return self.base + (k - self.base_step) * self.scenario.dt
+
+    def timeout(self, now: float) -> float:
+        if not self.free or self.base is None or self.step > self.allowed or self.step >= self.total_steps:
+            return self.idle_period
+        return max(0.0, self.deadline(self.step) - now)
+
+    def idle(self, now: float) -> None:
+        if not self.free or self.base is None:
+            return
+        while self.step <= self.allowed and self.step < self.total_steps and now >= self.deadline(self.step):
+            self.integrate(None, now - self.deadline(self.step))
+            now = time.monotonic()
+
+    def offer_free(self, cmd: Command) -> None:
+        """Free-running: a command answering a state already out; it acts from the next step integrated."""
+        assert self.hold is not None
+        if cmd.step > self.step or cmd.step >= self.total_steps:
+            self.count("future_commands")
+            self.warn("future_command",
+                      f"dropped controller/command for step {cmd.step}: the sim is at step {self.step}")
+        elif not self.hold.offer(cmd, cmd.step, self.step):
+            if cmd.step < self.hold.newest:
+                self.count("late_commands")  # a newer one came first: never used
+            else:
+                self.count("stale_commands")  # a repeated answer (after a resend)
+
     def on_command(self, cmd: Command) -> None:
+        if self.free:
+            self.offer_free(cmd)
+            return
         if cmd.step < self.step:
             last = self.last_command
             if last is not None and cmd.step == last.step and cmd.values != last.values:
@@ -149,6 +222,54 @@ class SimNode(Node):
         if self.step > self.allowed:
             self.pending = cmd  # the controller was quicker than the tick: wait for the clock
             return
+        if self.hold is not None:  # a command latency: this one acts later (or is lost)
+            assert self.latency is not None
+            acts_from = self.latency.acts_from(cmd.step)
+            if acts_from is None:
+                self.count("lost_commands")
+            else:
+                self.hold.offer(cmd, cmd.step, acts_from)
+            self.integrate(cmd, None)
+            return
+        self.integrate(cmd, None)
+
+    def select(self, k: int) -> tuple[Command, str]:
+        """What acts on step k when commands may be late: the held command, or the watchdog's policy."""
+        assert self.hold is not None
+        applied = self.applied = self.hold.select(k)
+        cmd = applied.command
+        if cmd is not None and not applied.watchdog:
+            if self.watchdog_active:
+                self.watchdog_active = False
+                log(self.name, f"step {k}: commands again (answering state {applied.answered}); the watchdog is off")
+            return cmd, cmd.status
+        policy = self.watchdog.policy
+        if applied.watchdog:
+            self.count("watchdog_steps")
+            if not self.watchdog_active:
+                self.watchdog_active = True
+                log(self.name, f"step {k}: no new command for {self.watchdog.timeout_ms:g} ms (the last answered "
+                    f"state {applied.answered}); watchdog policy {policy}")
+        if cmd is not None and policy == "hold":
+            return cmd, "watchdog:hold"
+        # static (also before the first command acts, and while an abort is on its way)
+        if self.command_kind == "lengths":
+            values = tuple(self.sim.encoder_lengths().tolist())
+            return Command(k, k * self.scenario.dt, (), True, "watchdog:static", values), "watchdog:static"
+        s = self.sim.state()
+        tensions = self.static.tensions(s.position, s.rotation, s.twist)
+        return Command(k, k * self.scenario.dt, tuple(tensions.tolist())), "watchdog:static"
+
+    def integrate(self, received: Command | None, lateness: float | None) -> None:
+        """Step k: with ``received`` (lock-step) or what the hold selects (free-running, a latency)."""
+        k = self.step
+        if self.hold is None:
+            assert received is not None
+            cmd = received
+        else:
+            cmd, status = self.select(k)
+            if cmd.step != k or cmd.status != status:  # recorded as what acted on step k
+                cmd = dataclasses.replace(cmd, step=k, t=k * self.scenario.dt, status=status)
         # The loop waits for the next state: it goes out first, the bookkeeping after.
         lag = time.monotonic() - self.published_at
         report = self.sim.step(np.asarray(cmd.values))
@@ -158,24 +279,26 @@ class SimNode(Node):
         if self.sim.fallbacks > self.counters.get("cable_fallbacks", 0):  # the cable law fell back
             self.count("cable_fallbacks")
             if self.counters["cable_fallbacks"] == 1:
-                log(self.name, f"step {cmd.step}: the cable model fell back: {self.sim.fallback_reason} "
+                log(self.name, f"step {k}: the cable model fell back: {self.sim.fallback_reason} "
                     "(such steps are counted in cable_fallbacks; logged once)")
-        self.last_command = cmd
+        self.last_command = cmd if received is None else received
         self.block_commands.append(cmd)
         self.block_lags.append(lag)
+        if lateness is not None:
+            self.block_lateness.append(lateness)
         if clamped:
             self.count("clamped_commands")
             self.warn(
                 "clamped",
-                f"step {cmd.step}: clamped {report.clamped_low} tension(s) below 0 and "
+                f"step {k}: clamped {report.clamped_low} tension(s) below 0 and "
                 f"{report.clamped_high} above tmax = {self.scenario.robot.tmax:g} N"
                 if cmd.lengths is None else
-                f"step {cmd.step}: clamped {report.clamped_high} length(s) above max_length = "
+                f"step {k}: clamped {report.clamped_high} length(s) above max_length = "
                 f"{self.scenario.robot.max_length:g} m",
             )
         if (len(self.block_states) >= TELEMETRY_EVERY or self.step >= self.total_steps
-                or 0 <= self.flush_at <= cmd.step or time.monotonic() - self.flushed_at >= TELEMETRY_PERIOD):
-            if self.flush_at <= cmd.step:
+                or 0 <= self.flush_at <= k or time.monotonic() - self.flushed_at >= TELEMETRY_PERIOD):
+            if self.flush_at <= k:
                 self.flush_at = -1
             self.flush()
         self.sim.state()  # the rest of the new state's geometry, for the next step: while the controller works

@@ -151,6 +151,32 @@ class SensorsSpec(Strict):
     imu: ImuSpec = Field(default_factory=lambda: ImuSpec())
 
 
+WatchdogPolicy = Literal["hold", "static", "abort"]
+WATCHDOG_POLICIES: tuple[WatchdogPolicy, ...] = ("hold", "static", "abort")
+
+
+class WatchdogSpec(Strict):
+    """What the sim does when no new command has come for ``timeout_ms`` (cdpr_sim.hold; docs/realtime.md)."""
+
+    policy: WatchdogPolicy = Field("static", description="hold: keep the last command; static: the tensions "
+                                   "that hold the current pose against gravity (and damp its motion); abort: "
+                                   "end the session, naming the controller")
+    timeout_ms: FiniteFloat = Field(100.0, gt=0.0, description="ms without a new command before the policy applies")
+    decay: FiniteFloat = Field(10.0, ge=0.0, description="static: the platform's speed decays at this rate, 1/s "
+                               "(the wrench adds -decay·M·twist; 0: gravity only)")
+
+
+class CommandLatencySpec(Strict):
+    """A deterministic command latency in lock-step (cdpr_sim.hold): the command answering state k acts from
+    step k + steps + j, j drawn uniformly in [0, jitter], lost with probability ``loss`` (then the previous one
+    holds); drawn from ``seed``, so that a run is bit-identical to the next."""
+
+    steps: int = Field(0, ge=0, le=100_000, description="the fixed delay, steps")
+    jitter: int = Field(0, ge=0, le=100_000, description="an extra delay of 0 … jitter steps, uniform")
+    loss: FiniteFloat = Field(0.0, ge=0.0, lt=1.0, description="probability that a command is lost")
+    seed: int = Field(0, ge=0, description="seed of the jitter and the losses")
+
+
 @dataclass(frozen=True)
 class CableModel:
     """A cable model a scenario may name in ``sim.cable_model`` (the sim's class for it: cdpr_sim.models)."""
@@ -179,6 +205,10 @@ class SimSpec(Strict):
     substeps: int | None = Field(None, ge=1, description="sub-steps per dt in lengths mode (default: chosen "
                                  "for stability and accuracy from the cables' stiffness)")
     sensors: SensorsSpec | None = Field(None, description="publish simulated sensor readings on sim/sensors")
+    watchdog: WatchdogSpec = Field(default_factory=lambda: WatchdogSpec(),
+                                   description="when commands stop coming (free-running realtime, lost commands)")
+    command_latency: CommandLatencySpec | None = Field(None, description="a deterministic command latency "
+                                                       "(lock-step): latency studies in fast mode")
 
     @field_validator("cable_model")
     @classmethod

@@ -74,13 +74,10 @@ class Keys:
         return f"{self.prefix}/alive/*"
 
     def topic(self, name: str, publisher: str | None = None) -> str:
-        """The key of topic ``name`` (a :data:`cdpr.protocol.wiring.TOPICS` name): ``stats`` is
-        ``stats/{publisher}`` to publish on, ``stats/*`` to subscribe to."""
-        if name == "stats":
-            return self.stats_all if publisher is None else self.stats(publisher)
-        if name == "alive":
-            return self.alive_all if publisher is None else self.alive(publisher)
-        return str(getattr(self, name))
+        """The key of topic ``name`` (a :data:`cdpr.protocol.wiring.TOPICS` name): a topic with one key per
+        node (``stats``, ``alive``, ``ping``) is ``stats/{publisher}`` to publish on, ``stats/*`` to subscribe to."""
+        key = TOPICS[name].key
+        return f"{self.prefix}/{key.replace('{node}', publisher or '*')}"
 
     def table(self) -> dict[str, str]:
         """Topic name → key expression (``{service}`` where a node's name goes), for documentation and tests."""
@@ -202,6 +199,9 @@ class Tick:
     the clock saw no progress (or a participant came back) and asks for the current state and the
     setpoints again, ``step`` then being the sim's current step. ``flush``: the clock will grant nothing
     more until it hears of progress, so the sim sends its telemetry once it has computed ``until``.
+    ``free``: free-running realtime (``--sync free``): the sim integrates each granted step at its own
+    wall-clock deadline, every ``dt`` from the first free grant, with the newest command it holds (it does
+    not wait for one); without it, the sim integrates a step once its command has come (lock-step).
     """
 
     step: int
@@ -209,14 +209,17 @@ class Tick:
     until: int = -1  # the last step granted (-1: ``step``)
     resend: bool = False
     flush: bool = False
+    free: bool = False
 
     def __post_init__(self) -> None:
         if self.until < self.step:
             object.__setattr__(self, "until", self.step)
 
     def encode(self) -> bytes:
-        return pack({"step": self.step, "t": self.t, "until": self.until, "resend": self.resend,
-                     "flush": self.flush})
+        msg = {"step": self.step, "t": self.t, "until": self.until, "resend": self.resend, "flush": self.flush}
+        if self.free:
+            msg["free"] = True
+        return pack(msg)
 
     @classmethod
     def decode(cls, payload: bytes) -> Tick:
@@ -225,10 +228,10 @@ class Tick:
         until = _int(msg, "until") if "until" in msg else step
         if until < step:
             raise ProtocolError(f"until: must be >= step ({step}), got {until}")
-        resend, flush = msg.get("resend", False), msg.get("flush", False)
-        if not isinstance(resend, bool) or not isinstance(flush, bool):
-            raise ProtocolError("resend, flush: expected true/false")
-        return cls(step, _float(msg, "t"), until, resend, flush)
+        resend, flush, free = msg.get("resend", False), msg.get("flush", False), msg.get("free", False)
+        if not isinstance(resend, bool) or not isinstance(flush, bool) or not isinstance(free, bool):
+            raise ProtocolError("resend, flush, free: expected true/false")
+        return cls(step, _float(msg, "t"), until, resend, flush, free)
 
 
 @dataclass(frozen=True, slots=True)
@@ -246,6 +249,8 @@ class State:
     cable_lengths: tuple[float, ...]
     tensions: tuple[float, ...]  # as applied over [t - dt, t] (zeros at step 0)
     clamped: int = 0  # commands clamped by the sim so far (optional on the wire, default 0)
+    command_age: int = 0  # steps: the step before this state minus the one the acting command answered
+    watchdog: int = 0  # 1 if the watchdog policy acted over the step before (instead of a command)
 
     def encode(self) -> bytes:
         return pack({"step": self.step, "t": self.t, **{c: code(getattr(self, c)) for c, code in _STATE_CODE}})
@@ -474,14 +479,16 @@ class Telemetry:
     over the same steps (the first valid one of each step), each with ``lags[i]``, the seconds from the
     step's state going out to the start of its integration (the controller's answer time plus any wait
     for the clock's grant), and the controller's ``solve_time`` when it sent one; ``sensors``: the
-    sensor readings taken with the states (empty without sensors). On the wire every column is a flat
-    array (see docs/protocol.md).
+    sensor readings taken with the states (empty without sensors); ``lateness``: in free-running realtime,
+    the seconds each step's integration started after its wall-clock deadline (one per command; empty in
+    lock-step). On the wire every column is a flat array (see docs/protocol.md).
     """
 
     states: tuple[State, ...]
     commands: tuple[Command, ...] = ()
     lags: tuple[float, ...] = ()
     sensors: tuple[Sensors, ...] = ()
+    lateness: tuple[float, ...] = ()
 
     def encode(self) -> bytes:
         s, c, r = self.states, self.commands, self.sensors
@@ -498,6 +505,8 @@ class Telemetry:
                 "lag": _floats(self.lags),
             },
         }
+        if self.lateness:
+            msg["command"]["lateness"] = _floats(self.lateness)
         if r:
             msg["sensors"] = {
                 "step": [x.step for x in r], "t": [x.t for x in r], "encoders": _flat([x.encoders for x in r]),
@@ -531,6 +540,7 @@ class Telemetry:
         if not isinstance(status, list) or len(status) != k or not all(isinstance(x, str) for x in status):
             raise ProtocolError(f"command.status: expected {k} strings")
         solve, lags = _vector(c, "solve_time", k), _vector(c, "lag", k)
+        lateness = _vector(c, "lateness", k) if "lateness" in c else ()
         commands = tuple(
             Command(c_steps[i], c_t[i], values[i] if kind == "tensions" else (), feasible[i], status[i],
                     values[i] if kind == "lengths" else None, solve[i] if solve[i] >= 0.0 else None)
@@ -547,7 +557,7 @@ class Telemetry:
             enc, cells = _rows(r, "encoders", j, m), _rows(r, "load_cells", j, m)
             acc, gyro = _rows(r, "accel", j, 3), _rows(r, "gyro", j, 3)
             sensors = tuple(Sensors(r_steps[i], r_t[i], enc[i], cells[i], acc[i], gyro[i]) for i in range(j))
-        return cls(states, commands, lags, sensors)
+        return cls(states, commands, lags, sensors, lateness)
 
 
 @dataclass(frozen=True, slots=True)

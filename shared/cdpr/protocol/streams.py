@@ -21,12 +21,15 @@ ACTUAL_QUATERNION = "actual/quaternion"  # [qx, qy, qz, qw]
 ACTUAL_TWIST = "actual/twist"  # [vx, vy, vz, wx, wy, wz], m/s and rad/s
 CABLE_LENGTHS = "actual/cable_lengths"  # m values, m
 CLAMPED = "actual/clamped"  # commands clamped by the sim so far
+COMMAND_AGE = "latency/command_age"  # steps between the state a command answered and the step it acted on
+WATCHDOG = "latency/watchdog"  # 1 on the steps the sim's watchdog policy acted instead of a command
 TENSION_SERIES = "tension/cable_{i}"  # one entity per cable (the tension panel's series), N
 
 # Foxglove JSON channels of the state (the MCAP file and the live server: docs/recording.md)
 PLATFORM_STATE = "/platform/state"
 LENGTHS = "/cables/lengths"
 TENSIONS = "/cables/tensions"
+COMMAND_TIMING = "/command/timing"  # the command age and the watchdog (Foxglove channel)
 
 
 @dataclass(frozen=True)
@@ -85,5 +88,11 @@ STATE_COLUMNS: tuple[Column, ...] = (
            since=1, series=(Series(TENSION_SERIES),), fields=(ChannelField(TENSIONS, "tensions"),)),
     Column("clamped", 1, "", "commands clamped by the sim so far", integer=True, default=0,
            series=(Series(CLAMPED),), fields=(ChannelField(PLATFORM_STATE, "clamped"),)),
+    Column("command_age", 1, "steps", "the age of the command that acted over [t − dt, t]: k − 1 − j for the "
+           "command answering state j (0 in lock-step without latency; docs/realtime.md)", integer=True,
+           default=0, since=1, series=(Series(COMMAND_AGE),), fields=(ChannelField(COMMAND_TIMING, "age"),)),
+    Column("watchdog", 1, "", "1 if the sim's watchdog policy acted over [t − dt, t] instead of a command",
+           integer=True, default=0, since=1, series=(Series(WATCHDOG),),
+           fields=(ChannelField(COMMAND_TIMING, "watchdog"),)),
 )
 STATE = {c.name: c for c in STATE_COLUMNS}

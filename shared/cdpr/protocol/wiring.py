@@ -7,7 +7,8 @@ names, and tests check that docs/protocol.md and docker/compose.yaml say the sam
 from these two tables: a node's ``subscribes``/``publishes`` (its row, set on the class from its name), the
 session's key expressions (:class:`cdpr.protocol.Keys`: ``keys.tick`` is ``cdpr/{session}/`` + the topic's key)
 and the service names that may hold a liveliness token. Every node also
-subscribes to ``status`` and publishes ``stats`` and a liveliness token ``alive/{node}``: the serve loop
+subscribes to ``status`` and publishes ``stats``, a liveliness token ``alive/{node}`` and answers ``ping/{node}``
+(an echo: ``cdpr ping`` measures the round trip to it): the serve loop
 does that for all of them, so they are listed here once (:data:`EVERY_NODE`) rather than per node.
 """
 
@@ -37,6 +38,7 @@ TOPICS: dict[str, Topic] = {
     "info": Topic("session/info", "SessionInfo", transport="queryable"),
     "stats": Topic("stats/{node}", "ServiceStats", "bad_stats"),
     "alive": Topic("alive/{node}", "", transport="liveliness"),
+    "ping": Topic("ping/{node}", "", transport="queryable"),  # answers a get with its payload (cdpr ping)
 }
 
 
@@ -47,7 +49,7 @@ class NodeWiring:
 
 
 # What the serve loop wires for every node, whatever the table says below.
-EVERY_NODE = NodeWiring(subscribes=("status",), publishes=("stats", "alive"))
+EVERY_NODE = NodeWiring(subscribes=("status",), publishes=("stats", "alive", "ping"))
 
 WIRING: dict[str, NodeWiring] = {
     "clock": NodeWiring(subscribes=("telemetry", "stats"), publishes=("tick", "status", "info")),

@@ -36,6 +36,7 @@ from numpy.typing import ArrayLike, NDArray
 from cdpr.errors import InputError
 from cdpr.mechanics.robot import Robot
 from cdpr.protocol.streams import (
+    COMMAND_TIMING,
     LENGTHS,
     PLATFORM_STATE,
     STATE_COLUMNS,
@@ -102,6 +103,7 @@ _STATE_CHANNELS = {
         "tmax": {**_NUM, "description": "upper tension limit, N"},
     }),
     LENGTHS: ("cdpr.CableLengths", "geometric cable lengths ‖a_i − t − R b_i‖", {}),
+    COMMAND_TIMING: ("cdpr.CommandTiming", "how old the command that acted over [t − dt, t] was, and the watchdog", {}),
 }
 
 

@@ -273,6 +273,7 @@ def blueprint(tension_range: tuple[float, float] | None = None) -> rrb.Blueprint
         rrb.TimeSeriesView(origin=ACTUAL_TWIST, name="Twist"),
         rrb.TimeSeriesView(origin=CABLE_LENGTHS, name="Cable lengths (m)"),
         rrb.TimeSeriesView(origin="command", name="Controller"),
+        rrb.TimeSeriesView(origin="latency", name="Command age (steps), watchdog"),
         rrb.TimeSeriesView(origin=CLOCK, name="Clock"),
         rrb.TextLogView(origin="/", name="Events"),
     )

@@ -285,6 +285,10 @@ def declare_topics(node: Node, session: zenoh.Session, inbox: Inbox) -> list[Any
     check_node(type(node).name, node.subscribes, node.publishes)  # the role (an instance may rename itself)
     keys = node.keys
     keep: list[Any] = []  # publishers, subscribers, queryables: kept alive as long as the node serves
+    def on_ping(query: zenoh.Query) -> None:  # an echo, answered on Zenoh's thread (never waits for the node)
+        query.reply(query.key_expr, b"" if query.payload is None else query.payload.to_bytes())
+
+    keep.append(session.declare_queryable(keys.topic("ping", node.name), on_ping))
     for topic in node.publishes:
         if TOPICS[topic].transport == "queryable":
             def on_query(query: zenoh.Query, topic: str = topic) -> None:

@@ -296,6 +296,8 @@ class RunOptions:
 
     session_id: str = "default"
     mode: str = "fast"  # "fast" or "realtime" (the clock's --mode)
+    sync: str = "lock"  # realtime: "lock" or "free" (the clock's --sync)
+    max_lateness: float | None = None  # the clock's --max-lateness (None: never abort)
     rrd: str | None = None
     spawn: bool = False
     connect_viewer: str | None = None
@@ -336,8 +338,12 @@ def node_argv(scenario: Scenario, opts: RunOptions, router: str) -> dict[str, li
     if opts.rt_priority is not None and not opts.in_process:
         loop += ["--rt-priority", str(opts.rt_priority)]
     expected = ["sim", "trajectory", "controller"] + (["recorder"] if opts.recording else [])
-    rejoin = [] if opts.rejoin_timeout is None else ["--rejoin-timeout", repr(opts.rejoin_timeout)]
-    argv = {"clock": [*loop, "--mode", opts.mode, "--expect", ",".join(expected), *rejoin]}
+    clock = [] if opts.rejoin_timeout is None else ["--rejoin-timeout", repr(opts.rejoin_timeout)]
+    if opts.sync != "lock":
+        clock += ["--sync", opts.sync]
+    if opts.max_lateness is not None:
+        clock += ["--max-lateness", repr(opts.max_lateness)]
+    argv = {"clock": [*loop, "--mode", opts.mode, "--expect", ",".join(expected), *clock]}
     argv.update({name: loop for name in ("sim", "trajectory", "controller") if name not in opts.without})
     if opts.recording:
         # The recorder is a client of the router even among local peers: it takes a few blocks a second
@@ -481,7 +487,8 @@ def _replay(scenario: Scenario, items: Iterable[tuple[str, bytes]]) -> tuple[Run
     return metrics, faults
 
 
-_CLOCK_FIGURES = ("lateness_p50_ms", "lateness_p99_ms", "lateness_p999_ms", "lateness_max_ms", "on_time_fraction")
+_CLOCK_FIGURES = ("lateness_p50_ms", "lateness_p99_ms", "lateness_p999_ms", "lateness_max_ms", "on_time_fraction",
+                  "command_age_p50", "command_age_p99", "command_age_max", "watchdog_steps")
 
 
 def session_summary(scenario: Scenario, opts: RunOptions, monitor: _Monitor, tape: Tape, codes: dict[str, int],
@@ -495,6 +502,7 @@ def session_summary(scenario: Scenario, opts: RunOptions, monitor: _Monitor, tap
         "scenario": scenario.name,
         "session": opts.session_id,
         "mode": opts.mode,
+        "sync": opts.sync,
         "in_process": opts.in_process,
         "steps": metrics.last_step if metrics.last_step >= 0 else 0,
         "total_steps": scenario.total_steps,

@@ -21,13 +21,14 @@ from numpy.typing import NDArray
 from cdpr import recording
 from cdpr.errors import InputError
 from cdpr.protocol import Command, Setpoint, State
-from cdpr.protocol.streams import STATE_COLUMNS
+from cdpr.protocol.streams import COMMAND_AGE, STATE_COLUMNS, WATCHDOG
 from cdpr.tools.metrics import RunMetrics
 
 FIGURE_SIZE = (12.0, 8.0)  # inches; at FIGURE_DPI this is the PNG's size in pixels
 FIGURE_DPI = 100
 TRACKING_PNG = "tracking.png"
 ORIENTATION_PNG = "orientation_error.png"
+LATENCY_PNG = "latency.png"
 SUMMARY_JSON = "summary.json"
 
 
@@ -205,7 +206,19 @@ def summarize(data: RecordingData) -> dict[str, Any]:
         "recorded_setpoints": len(metrics.setpoints),
         "recorded_commands": metrics.commands,
         "tension_series": tension_series,
+        **latency_summary(data),
     }
+
+
+def latency_summary(data: RecordingData) -> dict[str, Any]:
+    """The command ages (steps) and the watchdog's steps the recording shows (docs/realtime.md)."""
+    age, watchdog = data.get(COMMAND_AGE), data.get(WATCHDOG)
+    if not len(age.step):
+        return {}
+    ages = age.values[:, 0]
+    return {"command_age_p50": float(np.percentile(ages, 50)), "command_age_p99": float(np.percentile(ages, 99)),
+            "command_age_max": float(ages.max()),
+            "watchdog_steps": int(watchdog.values[:, 0].sum()) if len(watchdog.step) else 0}
 
 
 def _plot_xyz(ax: Any, s: Series, title: str, unit: str) -> None:
@@ -281,14 +294,40 @@ def plot_orientation(data: RecordingData, out: str | Path) -> None:
     plt.close(fig)
 
 
+def plot_latency(data: RecordingData, out: str | Path) -> None:
+    """The command age over time (steps), with the steps the watchdog's policy acted shaded."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, ax = plt.subplots(1, 1, figsize=(FIGURE_SIZE[0], FIGURE_SIZE[1] / 2), dpi=FIGURE_DPI)
+    age, watchdog = data.get(COMMAND_AGE), data.get(WATCHDOG)
+    if len(age.step):
+        ax.step(age.t, age.values[:, 0], where="post", color="tab:blue", linewidth=0.8, label="command age")
+    if len(watchdog.step) and watchdog.values[:, 0].any():
+        top = float(max(age.values[:, 0].max(), 1.0)) if len(age.step) else 1.0
+        ax.fill_between(watchdog.t, 0.0, top * watchdog.values[:, 0], step="post", color="tab:red", alpha=0.25,
+                        label=f"watchdog ({int(watchdog.values[:, 0].sum())} steps)")
+    ax.set_title("Command age: how many steps old the command that acted was (0: lock-step)")
+    ax.set_xlabel("sim time (s)")
+    ax.set_ylabel("steps")
+    ax.grid(True, alpha=0.3)
+    if ax.get_legend_handles_labels()[0]:
+        ax.legend(loc="best", fontsize="small")
+    fig.tight_layout()
+    fig.savefig(out, dpi=FIGURE_DPI)
+    plt.close(fig)
+
+
 def default_out_dir(rrd: str | Path) -> Path:
     p = Path(rrd)
     return p.with_name(f"{p.stem}_report")
 
 
 def write_report(rrd: str | Path, out_dir: str | Path | None = None) -> dict[str, Any]:
-    """Read ``rrd``; write ``tracking.png``, ``orientation_error.png`` and ``summary.json`` into ``out_dir``
-    (default: ``<name>_report/`` beside the file). Returns the summary and the files written."""
+    """Read ``rrd``; write ``tracking.png``, ``orientation_error.png``, ``latency.png`` and ``summary.json``
+    into ``out_dir`` (default: ``<name>_report/`` beside the file). Returns the summary and the files written."""
     data = read_recording(rrd)
     out = Path(out_dir) if out_dir is not None else default_out_dir(rrd)
     try:
@@ -296,8 +335,9 @@ def write_report(rrd: str | Path, out_dir: str | Path | None = None) -> dict[str
     except OSError as exc:
         raise InputError(f"-o: cannot create {out}: {exc.strerror or exc}") from None
     summary = summarize(data)
-    files = [out / TRACKING_PNG, out / ORIENTATION_PNG, out / SUMMARY_JSON]
+    files = [out / TRACKING_PNG, out / ORIENTATION_PNG, out / LATENCY_PNG, out / SUMMARY_JSON]
     plot_tracking(data, files[0])
     plot_orientation(data, files[1])
-    files[2].write_text(json.dumps(summary, indent=2) + "\n", encoding="utf-8")
+    plot_latency(data, files[2])
+    files[3].write_text(json.dumps(summary, indent=2) + "\n", encoding="utf-8")
     return {"summary": summary, "files": [str(f) for f in files]}

@@ -1,9 +1,10 @@
-"""``cdpr run|up|sim|trajectory|controller|clock|recorder|router|soak``: sessions and their nodes."""
+"""``cdpr run|up|sim|trajectory|controller|clock|recorder|router|ping|delay-proxy|soak``: sessions and their nodes."""
 
 from __future__ import annotations
 
 import os
 import sys
+import threading
 from collections.abc import Callable
 from typing import Any, NoReturn
 
@@ -12,7 +13,7 @@ import numpy as np
 
 from cdpr.errors import InputError
 from cdpr.runtime.options import RECORDER_OPTIONS, RT_PRIORITY, SESSION_OPTIONS
-from cdpr.tools.cli.group import cli, click_option, click_options
+from cdpr.tools.cli.group import cli, click_option, click_options, emit
 
 # ------------------------------------------------------------------------------------------------
 # Running sessions
@@ -57,6 +58,11 @@ _node_command("recorder", "Run the recorder: subscribes to the whole session and
 def _run_options(f: Callable[..., Any]) -> Callable[..., Any]:
     f = click.option("--summary", type=click.Path(), default=None, help="also write the JSON summary here")(f)
     f = click_options(RECORDER_OPTIONS)(f)
+    f = click.option("--max-lateness", type=float, default=None, metavar="S",
+                     help="realtime: end the session (aborted) once a step is S seconds behind the wall clock")(f)
+    f = click.option("--sync", type=click.Choice(["lock", "free"]), default="lock", show_default=True,
+                     help="realtime: lock-step (each step waits for its command) or free-running (the sim keeps "
+                          "the wall clock, a late command acts late: docs/realtime.md)")(f)
     f = click.option("--mode", type=click.Choice(["fast", "realtime"]), default="fast", show_default=True)(f)
     f = _rt_option(f)
     return _scenario_options(f)
@@ -76,7 +82,15 @@ def run(**kw: Any) -> None:
     from cdpr.tools.launch import RunOptions, run_session
 
     scenario = _load(kw.pop("scenario"), kw.pop("duration"))
+    _check_sync(kw)
     _leave(run_session(scenario, RunOptions(**kw)), at_once=not kw["in_process"])
+
+
+def _check_sync(kw: dict[str, Any]) -> None:
+    if kw["sync"] == "free" and kw["mode"] != "realtime":
+        raise click.UsageError("--sync free: free-running needs --mode realtime (fast mode is lock-step)")
+    if kw["max_lateness"] is not None and not kw["max_lateness"] > 0:
+        raise click.UsageError(f"--max-lateness: must be a number of seconds > 0, got {kw['max_lateness']}")
 
 
 def _leave(code: int, at_once: bool) -> NoReturn:
@@ -107,8 +121,62 @@ def up(**kw: Any) -> None:
     from cdpr.tools.launch import RunOptions, run_session
 
     scenario = _load(kw.pop("scenario"), kw.pop("duration"))
+    _check_sync(kw)
     # the normal exit: the router may still be forwarding the end to remote participants
     sys.exit(run_session(scenario, RunOptions(**kw)))
+
+
+@cli.command()
+@click.option("--session", "session_id", default="default", show_default=True, help="session id")
+@click.option("--connect", multiple=True, help="the session's router (default tcp/127.0.0.1:7447)")
+@click.option("--zenoh-config", type=click.Path(), default=None,
+              help="Zenoh JSON5 config file (or $ZENOH_CONFIG): TLS, user/password")
+@click.option("--node", default="sim", show_default=True,
+              type=click.Choice(["sim", "clock", "trajectory", "controller", "recorder"]))
+@click.option("--count", type=click.IntRange(1, 100_000), default=200, show_default=True)
+def ping(session_id: str, connect: tuple[str, ...], zenoh_config: str | None, node: str, count: int) -> None:
+    """Measure the round trip from here to a running session's NODE (where a controller would run), and
+    say whether it fits the session's dt. Prints one line, then a JSON summary."""
+    from cdpr.protocol import Keys
+    from cdpr.runtime.transport import log, open_session
+    from cdpr.runtime.transport import zenoh_config as make_config
+    from cdpr.tools.ping import ping as measure
+
+    conf = make_config("client", connect=connect or ("tcp/127.0.0.1:7447",), config_file=zenoh_config)
+    with open_session(conf, "ping") as session:
+        result = measure(session, Keys(session_id), node, count)
+    log("ping", result.verdict())
+    emit(result.summary())
+    if not result.answered:
+        sys.exit(1)
+
+
+@cli.command("delay-proxy")
+@click.option("--listen", "listen", required=True, help="HOST:PORT to accept connections on")
+@click.option("--to", "to", required=True, help="HOST:PORT to forward them to (a Zenoh router)")
+@click.option("--delay-ms", type=click.FloatRange(0.0), default=1.0, show_default=True,
+              help="added to each direction")
+def delay_proxy(listen: str, to: str, delay_ms: float) -> None:
+    """Forward TCP connections with a delay each way: a slow link on one machine (no netem needed). Point a
+    client-mode participant at it (--connect tcp/LISTEN) to see how a session copes (docs/realtime.md)."""
+    from cdpr.runtime.transport import StopFlag, log
+    from cdpr.tools.netdelay import DelayProxy, parse_address
+
+    try:
+        here, there = parse_address(listen), parse_address(to)
+    except ValueError as exc:
+        raise InputError(f"--listen/--to: {exc}") from None
+    stop = StopFlag().install()
+    wake = threading.Event()
+    stop.on_set(wake.set)
+    try:
+        proxy = DelayProxy(here, there, delay_ms * 1e-3)
+    except OSError as exc:
+        raise InputError(f"--listen {listen}: {exc.strerror}") from None
+    with proxy:
+        log("delay-proxy", f"forwarding {listen} -> {to}, {delay_ms:g} ms each way")
+        while not stop:
+            wake.wait(0.5)
 
 
 # ------------------------------------------------------------------------------------------------
