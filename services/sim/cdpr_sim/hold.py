@@ -13,7 +13,9 @@ never used (counted as late). The **command age** of step k is ``k − j`` for t
 j; before any command acts it counts from step −1 (and the sim applies its ``static`` tensions). The
 **watchdog** trips on the steps where no new command has started acting for ``watchdog_steps`` steps:
 the sim then applies its policy (:data:`cdpr.config.scenario.WATCHDOG_POLICIES`) instead of the held
-command.
+command. A command that would act ``watchdog_steps`` or more steps after the state it answered is not new:
+it never acts (counted as late), like a drive that refuses a setpoint older than its timeout — a controller
+working through a backlog of old states (a restart, a stall) cannot throw the platform with them.
 """
 
 from __future__ import annotations
@@ -56,7 +58,7 @@ class CommandHold(Generic[C]):
     held: C | None = None
     answered: int = -1  # the state the held command answered
     fresh_from: int = 0  # the step from which the held command acts
-    late: int = 0  # commands offered older than one already offered, or overtaken: never used
+    late: int = 0  # commands older than one already offered, overtaken, or too old when due: never used
     newest: int = -1  # the newest state answered by a command offered
     _pending: list[tuple[int, int, int, C]] = field(default_factory=list, repr=False)  # (from, -answered, n, cmd)
     _n: int = 0  # offers so far (a heap tie-breaker)
@@ -78,9 +80,9 @@ class CommandHold(Generic[C]):
         pending = self._pending
         while pending and pending[0][0] <= k:
             acts_from, neg, _, command = heapq.heappop(pending)
-            if -neg > self.answered:
+            if -neg > self.answered and k + neg < self.watchdog_steps:
                 self.held, self.answered, self.fresh_from = command, -neg, max(acts_from, 0)
-            else:  # overtaken by a newer command that acted first (jitter)
+            else:  # overtaken by a newer command that acted first (jitter), or too old to be trusted
                 self.late += 1
         tripped = self.held is not None and k - self.fresh_from >= self.watchdog_steps
         return Applied(self.held, self.answered, k - self.answered, tripped)
@@ -122,9 +124,17 @@ class StaticPolicy:
         self._W = WrenchMatrix(robot)
         self._tda: TensionDistributor | None = None  # made on first use (the QP stack takes ~0.3 s to import)
 
-    def tensions(self, position: Array, R: Array, twist: Array) -> Array:
+    def warm_up(self) -> None:
+        """Import and set up the QP now (a first call takes ~0.3 s, which a realtime step cannot spare)."""
         if self._tda is None:
             self._tda = make_tda("qp")
+            self._tda.solve(self._W(np.zeros(3), np.eye(3))[self.rows], np.zeros(len(self.rows)), 0.0, 1.0)
+            self._tda.reset()
+
+    def tensions(self, position: Array, R: Array, twist: Array) -> Array:
+        if self._tda is None:
+            self.warm_up()
+        assert self._tda is not None
         wrench = required_wrench(self.robot, R, twist, -self.decay * np.asarray(twist, dtype=float))
         if wrench.shape[0] == 6:
             wrench = wrench[self.rows]

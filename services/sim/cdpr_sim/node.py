@@ -79,6 +79,8 @@ class SimNode(Node):
         self.latency = None if spec.command_latency is None else LatencyModel(spec.command_latency)
         self.hold: CommandHold[Command] | None = None if self.latency is None else self._new_hold()
         self.static = StaticPolicy(scenario.robot, scenario.variant, spec.watchdog.decay, scenario.output)
+        if self.latency is not None and scenario.output == "tensions":
+            self.static.warm_up()  # the first steps, before a command acts
         self.applied: Applied[Command] | None = None  # what acted on the last step (free, latency)
         self.watchdog_active = False
         self.free = False  # free-running realtime: set by the first free tick
@@ -150,6 +152,8 @@ class SimNode(Node):
             self.free = True
             if self.hold is None:
                 self.hold = self._new_hold()
+            if self.command_kind == "tensions":
+                self.static.warm_up()  # before the deadlines start
             if self.last_command is not None:  # the handshake's step, taken in lock-step
                 self.hold.offer(self.last_command, self.last_command.step, self.step - 1)
         if self.free and tick.until > self.allowed and (self.base is None or self.step > self.allowed):
@@ -193,11 +197,8 @@ class SimNode(Node):
             self.count("future_commands")
             self.warn("future_command",
                       f"dropped controller/command for step {cmd.step}: the sim is at step {self.step}")
-        elif not self.hold.offer(cmd, cmd.step, self.step):
-            if cmd.step < self.hold.newest:
-                self.count("late_commands")  # a newer one came first: never used
-            else:
-                self.count("stale_commands")  # a repeated answer (after a resend)
+        elif not self.hold.offer(cmd, cmd.step, self.step) and cmd.step == self.hold.newest:
+            self.count("stale_commands")  # a repeated answer (after a resend); a late one: the hold counts it
 
     def on_command(self, cmd: Command) -> None:
         if self.free:
@@ -237,6 +238,8 @@ class SimNode(Node):
         """What acts on step k when commands may be late: the held command, or the watchdog's policy."""
         assert self.hold is not None
         applied = self.applied = self.hold.select(k)
+        if self.hold.late != self.counters.get("late_commands", 0):
+            self.counters["late_commands"] = self.hold.late  # never acted: overtaken or too old (cdpr_sim.hold)
         cmd = applied.command
         if cmd is not None and not applied.watchdog:
             if self.watchdog_active:

@@ -356,11 +356,11 @@ print(sum(x <= 0.001 for x in lat) / max(1, len(lat)), 1e3 * max(lat, default=0.
 """
 
 
-class _SleeperProbe:
+class SleeperProbe:
     """A process that sleeps until each millisecond, as the clock does, and counts how late it woke:
     the lateness the machine itself gives a sleeping thread (what is left is the loop's own)."""
 
-    def __enter__(self) -> _SleeperProbe:
+    def __enter__(self) -> SleeperProbe:
         self.proc = subprocess.Popen([sys.executable, "-c", _PROBE], stdin=subprocess.PIPE,
                                      stdout=subprocess.PIPE, text=True)
         self.on_time_fraction: float | None = None
@@ -400,7 +400,7 @@ def bench_realtime(scenario: str, duration: float) -> dict[str, Any]:
     def one(extra: list[str]) -> dict[str, Any]:
         args = [scenario, "--mode", "realtime", "--duration", repr(duration), *extra]
         stat0 = _cpu_stat()
-        with _SleeperProbe() as probe:
+        with SleeperProbe() as probe:
             s = _run_sessions([args], "rt", 900.0)[0]
         stat1 = _cpu_stat()
         busy = {k: (stat1[k] - stat0[k]) / max(1, stat1["total"] - stat0["total"]) for k in ("steal", "idle")}

@@ -49,6 +49,11 @@ SUMMARY_METRICS = {
     "sim_time": "simulated time, s",
     "wall_time": "wall time of the session's loop, s",
     "resends": "ticks the clock resent",
+    "command_age_p50": "median command age, steps (free-running realtime, a command latency)",
+    "command_age_p99": "99th percentile of the command age, steps",
+    "command_age_max": "largest command age, steps",
+    "watchdog_steps": "steps on which the sim's watchdog policy acted",
+    "on_time_fraction": "realtime: the share of ticks (free-running: steps) within dt of their deadline",
 }
 # ... and these, derived from the summary and the point's scenario
 DERIVED_METRICS = {
