@@ -318,6 +318,7 @@ def test_compose_services_are_complete() -> None:
     assert clock[clock.index("--expect") + 1] == "sim,trajectory,controller,recorder"
     assert clock[clock.index("--join-timeout") + 1] == "120"
     assert clock[clock.index("--rejoin-timeout") + 1] == "120"
+    assert clock[clock.index("--sync") + 1] == "lock"
     # `up ... clock` starts every participant with the clock and follows the clock alone.
     assert set(services["clock"]["depends_on"]) == {"router", "sim", "trajectory", "controller", "recorder"}
     rec = command_of(services["recorder"])
@@ -330,13 +331,14 @@ def test_compose_services_are_complete() -> None:
     # The settings reach every session service.
     env = {"CDPR_SCENARIO": "caroca_1kg", "CDPR_SESSION": "s1", "CDPR_ARGS": "--duration 0.5",
            "CDPR_PORT": "9000", "CDPR_JOIN_TIMEOUT": "7", "CDPR_REJOIN_TIMEOUT": "9", "CDPR_RECORDINGS": "/data/rec",
-           "CDPR_BASE": "local/py"}
+           "CDPR_BASE": "local/py", "CDPR_MODE": "realtime", "CDPR_SYNC": "free"}
     over = load_compose([COMPOSE], env)
     assert over["router"]["ports"] == ["9000:7447"]
     assert over["recorder"]["volumes"] == ["/data/rec:/recordings"]
     assert over["sim"]["build"]["args"] == {"BASE": "local/py"}
     assert command_of(over["clock"])[command_of(over["clock"]).index("--join-timeout") + 1] == "7"
     assert command_of(over["clock"])[command_of(over["clock"]).index("--rejoin-timeout") + 1] == "9"
+    assert command_of(over["clock"])[command_of(over["clock"]).index("--sync") + 1] == "free"
     for name in (*SESSION_SERVICES, "controller"):
         cmd = command_of(over[name])
         assert cmd[1] == "caroca_1kg"

@@ -291,13 +291,13 @@ def test_plain_example_imports_nothing_from_cdpr() -> None:
     assert {"zenoh", "msgpack"} <= modules
 
 
-def _up_with(example: str, session_id: str, duration: str, tmp_path: Path) -> tuple[dict[str, Any], str]:
+def _up_with(example: str, session_id: str, duration: str, tmp_path: Path, *extra: str) -> tuple[dict[str, Any], str]:
     endpoint = f"tcp/127.0.0.1:{free_port()}"
     procs = Processes()
     try:
         up = procs.start("up", [*CDPR, "up", "caroca_15kg", "--duration", duration, "--session", session_id,
                                 "--without", "controller", "--listen", endpoint, "--quiet",
-                                "--join-timeout", "60"], tmp_path, tmp_path / "up.log")
+                                "--join-timeout", "60", *extra], tmp_path, tmp_path / "up.log")
         procs.start("remote", [sys.executable, str(EXAMPLES / example), "--connect", endpoint,
                                "--session", session_id], tmp_path, tmp_path / "remote.log")
         codes = procs.wait(["up", "remote"], timeout=180)
@@ -330,6 +330,20 @@ def test_both_example_controllers_complete_a_15kg_session_alike(session_id: str,
     sdk, plain = runs.values()
     for key in ("rms_position_error", "max_position_error", "rms_orientation_error", "tension_max"):
         assert plain[key] == pytest.approx(sdk[key], rel=1e-6), key
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("example", ["remote_controller.py", "plain_zenoh_controller.py"])
+def test_both_examples_run_unchanged_in_free_running_realtime(example: str, session_id: str, tmp_path: Path) -> None:
+    """--sync free changes nothing a controller must do (docs/protocol.md): the same examples, as they are."""
+    s, remote_log = _up_with(example, session_id, "1.5", tmp_path, "--mode", "realtime", "--sync", "free")
+    assert s["exit_ok"] is True
+    assert s["sync"] == "free"
+    assert s["steps"] == 1500
+    assert s["rms_position_error"] < 1e-3
+    assert s["command_age_max"] < 100  # the watchdog (100 ms) never acted
+    assert s["watchdog_steps"] == 0
+    assert "up to step" in remote_log
 
 
 @pytest.mark.slow
