@@ -12,6 +12,7 @@ compares with the probe's figure instead, as docs/benchmarks.md does.
 from __future__ import annotations
 
 import itertools
+import json
 import math
 import re
 import signal
@@ -370,3 +371,37 @@ def test_cdpr_ping_without_a_session_says_so_and_exits_1(session_id: str) -> Non
     assert "no answer from sim" in run.stderr
 
 
+
+
+def test_command_age_and_watchdog_reach_the_rrd_the_mcap_and_the_report(tmp_path: Path, session_id: str) -> None:
+    from mcap.reader import make_reader
+    from rerun.chunk import RrdReader
+
+    path = _scenario(tmp_path, "latency_rec", sim__command_latency={"steps": 4, "seed": 1})
+    rrd, mcap = tmp_path / "s.rrd", tmp_path / "s.mcap"
+    run = subprocess.run([*CDPR, "run", str(path), "--in-process", "--quiet", "--duration", "0.2", "--session",
+                          session_id, "--rrd", str(rrd), "--mcap", str(mcap)],
+                         capture_output=True, text=True, timeout=300, check=False)
+    assert run.returncode == 0, run.stderr[-3000:]
+    ages: dict[int, float] = {}
+    for chunk in RrdReader(str(rrd)).stream().to_chunks():
+        if chunk.entity_path.lstrip("/") == "latency/command_age" and not chunk.is_static:
+            batch = chunk.to_record_batch()
+            for k, v in zip(batch.column("step").to_pylist(), batch.column("Scalars:scalars").to_pylist(), strict=True):
+                ages[k] = v[0]
+    # state k+1 carries the age of the command that acted on step k: before the first one acts (steps 0-3)
+    # it counts from state -1, then every command is 4 steps old
+    assert [ages[k] for k in range(1, 6)] == [1.0, 2.0, 3.0, 4.0, 4.0]
+    assert set(ages[k] for k in range(5, 201)) == {4.0}
+    with mcap.open("rb") as f:
+        rows = [json.loads(m.data) for _, _, m in make_reader(f).iter_messages(topics=["/command/timing"])]
+    assert len(rows) == 200  # every state but 0
+    assert {r["age"] for r in rows[4:]} == {4}
+    assert {r["watchdog"] for r in rows} == {0}
+    report = subprocess.run([*CDPR, "report", str(rrd), "-o", str(tmp_path / "report")], capture_output=True,
+                            text=True, timeout=300, check=False)
+    assert report.returncode == 0, report.stderr[-3000:]
+    summary = last_json_line(report.stdout)["summary"]
+    assert summary["command_age_p50"] == 4.0
+    assert summary["watchdog_steps"] == 0
+    assert (tmp_path / "report" / "latency.png").stat().st_size > 10_000
