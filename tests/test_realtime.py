@@ -405,3 +405,14 @@ def test_command_age_and_watchdog_reach_the_rrd_the_mcap_and_the_report(tmp_path
     assert summary["command_age_p50"] == 4.0
     assert summary["watchdog_steps"] == 0
     assert (tmp_path / "report" / "latency.png").stat().st_size > 10_000
+
+
+def test_a_modelled_latency_adds_to_a_free_running_link(tmp_path: Path, session_id: str) -> None:
+    path = _scenario(tmp_path, "latency_free", controller__kp=400.0, controller__kd=40.0,
+                     sim__command_latency={"steps": 5, "seed": 1})
+    run = subprocess.run([*CDPR, "run", str(path), "--mode", "realtime", "--sync", "free", "--quiet", "--duration",
+                          "1", "--session", session_id], capture_output=True, text=True, timeout=300, check=False)
+    assert run.returncode == 0, run.stderr[-3000:]
+    s = last_json_line(run.stdout)
+    assert s["command_age_p50"] >= 5  # the model's 5 steps, plus whatever the loopback adds
+    assert s["watchdog_steps"] == 0

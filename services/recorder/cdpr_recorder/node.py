@@ -17,6 +17,7 @@ from __future__ import annotations
 
 import argparse
 import time
+from collections.abc import Sequence
 from typing import TYPE_CHECKING
 
 import numpy as np
@@ -76,6 +77,7 @@ class RecorderNode(Node):
         self.warn = RateLimitedLog(self.name)
         self.bad_messages = 0
         self.last_flush = time.monotonic()
+        self._last_status = "ok"  # the status of the last command logged (statuses_to_log)
         self.finish_by: float | None = None  # set when the clock has finished, until the final state is in
         self.closed = False
         self.tension_peak = 0.0  # highest applied tension seen: sets the tension plot's range at the end
@@ -220,6 +222,16 @@ class RecorderNode(Node):
         fox.end_batch()
 
     # -- Rerun ------------------------------------------------------------------------------------
+    def statuses_to_log(self, statuses: Sequence[str]) -> list[int]:
+        """The commands whose status goes to the event log: every one that is not ``ok``, but only the first
+        of a run of the watchdog's (``watchdog:static`` every step while it acts would flood the log)."""
+        out = []
+        for j, status in enumerate(statuses):
+            if status != "ok" and not (status.startswith("watchdog:") and status == self._last_status):
+                out.append(j)
+            self._last_status = status
+        return out
+
     def send(self, b: Batch) -> None:
         """One ``send_columns`` per entity for the whole batch."""
         rec, robot = self.rec, self.robot
@@ -249,7 +261,7 @@ class RecorderNode(Node):
         c = b.commands
         if len(c.step):
             recording.send_scalars(rec, recording.COMMAND_FEASIBLE, c.step, c.t, c.feasible.astype(float))
-            bad = [j for j, status in enumerate(c.status) if status != "ok"]
+            bad = self.statuses_to_log(c.status)
             commanded = recording.COMMAND_TENSIONS if c.kind == "tensions" else recording.COMMAND_LENGTHS
             recording.send_scalars(rec, commanded, c.step, c.t, c.values)
             timed = ~np.isnan(c.solve_time)

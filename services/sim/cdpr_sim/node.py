@@ -12,7 +12,7 @@ clamped to [0, tmax] and counted.
 Two variations (docs/realtime.md), both through :mod:`cdpr_sim.hold`:
 
 * a scenario ``sim.command_latency`` (lock-step): step k still waits for command k, then applies the newest
-  command whose delayed step has come;
+  command whose delayed step has come (free-running, the modelled latency adds to the link's);
 * free-running realtime (ticks marked ``free``): the sim no longer waits for commands. It integrates each
   granted step at its own deadline, ``dt`` apart from the first free grant (or from the grant that ends a
   wait for one: a pause), with the newest command it holds, or its watchdog policy; each step's lateness goes
@@ -197,7 +197,15 @@ class SimNode(Node):
             self.count("future_commands")
             self.warn("future_command",
                       f"dropped controller/command for step {cmd.step}: the sim is at step {self.step}")
-        elif not self.hold.offer(cmd, cmd.step, self.step) and cmd.step == self.hold.newest:
+            return
+        acts_from = self.step
+        if self.latency is not None and cmd.step > self.hold.newest:  # a modelled latency on top of the link's
+            delayed = self.latency.acts_from(cmd.step)
+            if delayed is None:
+                self.count("lost_commands")
+                return
+            acts_from = max(acts_from, delayed)
+        if not self.hold.offer(cmd, cmd.step, acts_from) and cmd.step == self.hold.newest:
             self.count("stale_commands")  # a repeated answer (after a resend); a late one: the hold counts it
 
     def on_command(self, cmd: Command) -> None:
