@@ -6,13 +6,14 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from cdpr.config.scenario import CommandLatencySpec, load_scenario
+from cdpr.config.scenario import CommandLatencySpec, WatchdogSpec, load_scenario
+from cdpr.errors import InputError
 from cdpr.mechanics.dynamics import gravity_wrench
 from cdpr.mechanics.kinematics import inverse_kinematics
 from cdpr.protocol import Command, ProtocolError, State, Telemetry, Tick
 from cdpr.protocol.messages import pack
 from cdpr_clock.core import FREE_AHEAD, ClockCore
-from cdpr_sim.hold import CommandHold, LatencyModel, StaticPolicy, watchdog_steps
+from cdpr_sim.hold import CommandHold, LatencyModel, StaticPolicy
 
 
 def test_the_newest_command_that_may_act_holds() -> None:
@@ -51,24 +52,22 @@ def test_the_watchdog_trips_after_its_steps_without_a_new_command_and_clears_on_
 
 
 def test_watchdog_steps_round_up() -> None:
-    assert watchdog_steps(100.0, 0.001) == 100
-    assert watchdog_steps(0.5, 0.001) == 1
-    assert watchdog_steps(2.5, 0.001) == 3
+    assert WatchdogSpec(timeout_ms=100.0).steps(0.001) == 100
+    assert WatchdogSpec(timeout_ms=0.5).steps(0.001) == 1
+    assert WatchdogSpec(timeout_ms=2.5).steps(0.001) == 3
 
 
 def test_the_latency_model_is_a_function_of_its_seed() -> None:
     spec = CommandLatencySpec(steps=5, jitter=3, loss=0.2, seed=7)
     first, second = LatencyModel(spec), LatencyModel(spec)
-    a = [first.acts_from(k) for k in range(2000)]
-    b = [second.acts_from(k) for k in range(2000)]
-    assert a == b
-    delays = [x - k for k, x in enumerate(a) if x is not None]
-    assert set(delays) == {5, 6, 7, 8}
+    a = [first.delay() for _ in range(2000)]
+    assert a == [second.delay() for _ in range(2000)]
+    assert {d for d in a if d is not None} == {5, 6, 7, 8}
     assert 0.15 < a.count(None) / len(a) < 0.25
     other = LatencyModel(CommandLatencySpec(steps=5, jitter=3, loss=0.2, seed=8))
-    assert [other.acts_from(k) for k in range(2000)] != a
+    assert [other.delay() for _ in range(2000)] != a
     fixed = LatencyModel(CommandLatencySpec(steps=4))
-    assert [fixed.acts_from(k) for k in range(5)] == [4, 5, 6, 7, 8]
+    assert [fixed.delay() for _ in range(3)] == [4, 4, 4]
 
 
 def test_static_tensions_hold_the_pose_against_gravity_and_brake_a_moving_platform() -> None:
@@ -141,3 +140,34 @@ def test_a_command_too_old_when_due_never_acts() -> None:
     assert hold.late == 1
     hold.offer("c12", 12, 14)
     assert hold.select(14).command == "c12"
+
+
+def test_a_huge_command_age_is_counted_not_allocated() -> None:
+    core = ClockCore(total_steps=100, dt=0.001, realtime=True, free=True)
+    core.on_ages([2**63, 1, 1], watchdog=0)  # a bad sim's number: the clock stays up
+    st = core.stats(1.0)
+    assert (st["command_age_p50"], st["command_age_max"]) == (1, 2**63)
+
+
+def test_a_latency_the_watchdog_would_refuse_is_a_scenario_error() -> None:
+    with pytest.raises(InputError, match=r"sim.command_latency: steps \+ jitter = 100 steps must stay below"):
+        load_scenario("caroca_15kg", {"sim": {"command_latency": {"steps": 90, "jitter": 10}}})
+    load_scenario("caroca_15kg", {"sim": {"command_latency": {"steps": 90, "jitter": 10},
+                                          "watchdog": {"timeout_ms": 101.0}}})
+
+
+def test_the_clock_refuses_free_running_or_max_lateness_in_fast_mode() -> None:
+    import argparse
+
+    from cdpr.protocol import Keys
+    from cdpr_clock.node import ClockNode
+
+    parser = argparse.ArgumentParser()
+    ClockNode.add_arguments(parser)
+    scenario = load_scenario("caroca_15kg")
+    for argv, message in ((["--sync", "free"], "--sync free: free-running needs --mode realtime"),
+                          (["--max-lateness", "1"], "--max-lateness: only realtime sessions")):
+        with pytest.raises(InputError, match=message):
+            ClockNode.from_args(scenario, Keys("s"), parser.parse_args(argv))
+    node = ClockNode.from_args(scenario, Keys("s"), parser.parse_args(["--mode", "realtime", "--sync", "free"]))
+    assert node.core.free

@@ -246,7 +246,8 @@ def _watchdog_session(tmp_path: Path, session_id: str, policy: str, kill_at: int
                       trajectory_s: float, back_at: int | None = None) -> tuple[dict[int, State], dict[str, Any], str]:
     """A free-running session whose controller (its own process, a client of the session's router) is killed
     when the sim reaches step ``kill_at`` (and replaced at ``back_at``): every state, the summary, the log."""
-    path = _scenario(tmp_path, f"watchdog_{policy}", duration=duration,
+    # gains that tolerate the free-running link's few steps of latency (docs/realtime.md: the paper's do not)
+    path = _scenario(tmp_path, f"watchdog_{policy}", duration=duration, controller__kp=400.0, controller__kd=40.0,
                      trajectory__waypoints=[{"t": 0.0, "position": [0.9, 0.9, 0.2]},
                                             {"t": trajectory_s, "position": [-0.3, -0.3, 0.8]}],
                      sim__watchdog={"policy": policy, "timeout_ms": WATCHDOG_MS})
@@ -278,18 +279,20 @@ def _watchdog_session(tmp_path: Path, session_id: str, policy: str, kill_at: int
     return states, last_json_line(out), err
 
 
-def _killed_at(states: dict[int, State]) -> tuple[int, int]:
-    """The first step the watchdog acted on, and the last step a fresh command acted on before it."""
-    tripped = min(k - 1 for k, s in states.items() if s.watchdog)
-    last_fresh = max(k - 1 - s.command_age for k, s in states.items() if k - 1 < tripped and k >= 1)
-    return tripped, last_fresh
+def _killed_at(states: dict[int, State], kill_at: int) -> tuple[int, int]:
+    """The first step after ``kill_at`` the watchdog acted on, and the step from which the last command before
+    it acted (it answered state k − 1 − age of the state k that followed each step)."""
+    tripped = min(k - 1 for k, s in states.items() if s.watchdog and k - 1 >= kill_at)
+    answered = tripped - 1 - states[tripped].command_age
+    acting = min(k - 1 for k, s in states.items() if k >= 1 and not s.watchdog and k - 1 - s.command_age == answered)
+    return tripped, acting
 
 
 def test_static_watchdog_holds_a_platform_at_rest_within_5mm(tmp_path: Path, session_id: str) -> None:
     states, s, err = _watchdog_session(tmp_path, session_id, "static", kill_at=2500, duration=5.0, trajectory_s=2.0)
     assert s["exit_ok"] is True, err[-3000:]
-    tripped, answered = _killed_at(states)
-    assert tripped - answered <= WATCHDOG_MS + 1, (tripped, answered)  # within watchdog_ms (in steps), counted
+    tripped, acting = _killed_at(states, 2500)
+    assert tripped - acting == WATCHDOG_MS, (tripped, acting)  # watchdog_ms (in steps) after the last new command
     assert s["watchdog_steps"] >= 2000  # from then on, to the end
     assert "watchdog policy static" in err
     hold = np.array(states[tripped].pose[:3])
@@ -300,7 +303,7 @@ def test_static_watchdog_holds_a_platform_at_rest_within_5mm(tmp_path: Path, ses
 def test_static_watchdog_brakes_a_moving_platform_inside_the_workspace(tmp_path: Path, session_id: str) -> None:
     states, s, err = _watchdog_session(tmp_path, session_id, "static", kill_at=1500, duration=4.0, trajectory_s=3.0)
     assert s["exit_ok"] is True, err[-3000:]
-    tripped, _ = _killed_at(states)
+    tripped, _ = _killed_at(states, 1500)
     speed = {k: float(np.linalg.norm(st.twist[:3])) for k, st in states.items()}
     assert speed[tripped] > 0.05  # it was moving
     robot = load_scenario("caroca_15kg").robot
@@ -330,7 +333,7 @@ def test_a_controller_that_comes_back_resumes_control(tmp_path: Path, session_id
                                        back_at=3000)
     assert s["exit_ok"] is True, err[-3000:]
     assert "commands again" in err
-    tripped, _ = _killed_at(states)
+    tripped, _ = _killed_at(states, 2500)
     resumed = min(k for k, st in states.items() if k > tripped and not st.watchdog)
     after = [states[k].watchdog for k in range(resumed, max(states) + 1)]
     assert sum(after) < 0.05 * len(after)  # in control again (a stall of this machine may trip it briefly)
@@ -373,8 +376,6 @@ def test_cdpr_ping_without_a_session_says_so_and_exits_1(session_id: str) -> Non
     assert "no answer from sim" in run.stderr
 
 
-
-
 def test_command_age_and_watchdog_reach_the_rrd_the_mcap_and_the_report(tmp_path: Path, session_id: str) -> None:
     from mcap.reader import make_reader
     from rerun.chunk import RrdReader
@@ -404,7 +405,7 @@ def test_command_age_and_watchdog_reach_the_rrd_the_mcap_and_the_report(tmp_path
                             text=True, timeout=300, check=False)
     assert report.returncode == 0, report.stderr[-3000:]
     summary = last_json_line(report.stdout)["summary"]
-    assert summary["command_age_p50"] == 4.0
+    assert summary["command_age_p50"] == 4
     assert summary["watchdog_steps"] == 0
     assert (tmp_path / "report" / "latency.png").stat().st_size > 10_000
 

@@ -59,9 +59,11 @@ class ClockCore:
     _latest: float = field(default=-math.inf, repr=False)  # the largest lateness
     _percentiles: dict[str, float] = field(default_factory=dict, repr=False)  # see stats()
     _percentiles_of: int = field(default=0, repr=False)  # how many ticks they were computed from
-    ages: list[int] = field(default_factory=list)  # how many steps had each command age (index: the age)
+    ages: dict[int, int] = field(default_factory=dict)  # command age (steps) -> how many steps had it
     watchdog_steps: int = 0  # steps on which the sim's watchdog policy acted
     window: list[tuple[float, bool]] = field(default_factory=list, repr=False)  # (time, late) of the last second
+    peak: float = field(default=-math.inf, repr=False)  # the largest lateness since take_peak()
+    free_started: float | None = None  # free-running: the arrival of state 1 (the wall clock's rate from there)
 
     def __post_init__(self) -> None:
         if self.free:
@@ -107,7 +109,24 @@ class ClockCore:
         if late * 1e3 <= self.dt * 1e3:  # (in ms, as stats() reports it)
             self._on_time += 1
         self._latest = max(self._latest, late)
+        self.peak = max(self.peak, late)
         self.window.append((now, late > self.dt))
+
+    def take_peak(self) -> float:
+        """The largest lateness recorded since the last call (s; -inf: none)."""
+        peak, self.peak = self.peak, -math.inf
+        return peak
+
+    def behind(self, now: float) -> float:
+        """How far the loop is behind the wall clock now (s): lock-step, how overdue the next tick is (the
+        clock waiting for the sim); free-running, how long the sim has not been heard of, beyond a
+        telemetry block's period."""
+        if self.started_at is None or self.paused or self.finished:
+            return 0.0
+        if self.free:
+            return now - self.last_progress - 0.25 if self.reached >= 1 else 0.0
+        k = self.issued + 1
+        return now - self.deadline(k) if k < self.total_steps and self.reached >= 1 else 0.0
 
     def on_lateness(self, lateness: list[float] | tuple[float, ...], now: float) -> None:
         """Free-running: how late the sim started each of a block's steps (s)."""
@@ -118,9 +137,7 @@ class ClockCore:
         """The command ages of a block's steps, and how many of them ran on the watchdog's policy."""
         counts = self.ages
         for age in ages:
-            if age >= len(counts):
-                counts.extend([0] * (age + 1 - len(counts)))
-            counts[age] += 1
+            counts[age] = counts.get(age, 0) + 1
         self.watchdog_steps += watchdog
 
     def late_share(self, now: float, span: float = 1.0) -> tuple[float, int]:
@@ -138,8 +155,11 @@ class ClockCore:
         """Record state k; True if it is news (progress)."""
         if k <= self.reached:
             return False
-        if self.reached < 1 <= k and self.realtime and not self.free:
-            self.base, self.base_step = now, 1  # the handshake is over: tick 1 is due now
+        if self.reached < 1 <= k and self.realtime:
+            if self.free:
+                self.free_started = now
+            else:
+                self.base, self.base_step = now, 1  # the handshake is over: tick 1 is due now
         self.reached = k
         self.last_progress = now
         return True
@@ -198,12 +218,17 @@ class ClockCore:
         if self._paused_since is not None:
             wall -= now - self._paused_since
         steps = max(self.reached, 0)
+        free_wall, free_steps = wall, steps  # free-running: from state 1 (the handshake's round trips left out)
+        if self.free_started is not None and self.started_at is not None:
+            free_wall -= self.free_started - self.started_at
+            free_steps -= 1
         out: dict[str, float | int] = {
             "steps": steps,
             "sim_time": steps * self.dt,
             "wall_time": wall,
             "rate": steps / wall if wall > 0 else 0.0,
-            "rtf": steps * self.dt / wall if wall > 0 else 0.0,
+            "rtf": (free_steps * self.dt / free_wall if free_wall > 0 else 0.0) if self.free else
+                   (steps * self.dt / wall if wall > 0 else 0.0),
             "late_ticks": self.late_ticks,
             "resends": self.resends,
             "handshake_repeats": self.handshake_repeats,
@@ -223,10 +248,11 @@ class ClockCore:
         return out
 
 
-def _age_stats(counts: list[int]) -> dict[str, int]:
-    """The median, 99th percentile and largest command age, in steps, from the count of each age."""
-    total = sum(counts)
-    cumulative = np.cumsum(counts)
-    p50, p99 = (int(np.searchsorted(cumulative, q * total)) for q in (0.5, 0.99))
-    return {"command_age_p50": p50, "command_age_p99": p99,
-            "command_age_max": max(i for i, c in enumerate(counts) if c)}
+def _age_stats(counts: dict[int, int]) -> dict[str, int]:
+    """The median, 99th percentile and largest command age, in steps, from the count of each age: the
+    smallest age that many steps did not exceed (numpy's ``inverted_cdf`` percentile, as cdpr report)."""
+    ages = sorted(counts)
+    cumulative = np.cumsum([counts[a] for a in ages])
+    total = int(cumulative[-1])
+    p50, p99 = (ages[int(np.searchsorted(cumulative, q * total))] for q in (0.5, 0.99))
+    return {"command_age_p50": p50, "command_age_p99": p99, "command_age_max": ages[-1]}

@@ -21,7 +21,6 @@ working through a backlog of old states (a restart, a stall) cannot throw the pl
 from __future__ import annotations
 
 import heapq
-import math
 from dataclasses import dataclass, field
 from typing import Generic, TypeVar
 
@@ -88,25 +87,22 @@ class CommandHold(Generic[C]):
         return Applied(self.held, self.answered, k - self.answered, tripped)
 
 
-def watchdog_steps(timeout_ms: float, dt: float) -> int:
-    """The watchdog's timeout in steps (at least 1)."""
-    return max(1, math.ceil(timeout_ms * 1e-3 / dt - 1e-9))
-
-
 class LatencyModel:
-    """The step from which the command answering state k acts, or None if it is lost
-    (:class:`cdpr.config.scenario.CommandLatencySpec`). One draw per state, in the order the states are
-    answered (lock-step answers every state once, in order): the same scenario gives the same delays."""
+    """How many steps each command is delayed, or whether it is lost (:class:`cdpr.config.scenario.CommandLatencySpec`):
+    the command answering state k acts from step k + delay in lock-step, from its arrival + delay in
+    free-running realtime. One draw per command, in the order they come (lock-step answers every state once,
+    in order): the same scenario gives the same delays."""
 
     def __init__(self, spec: CommandLatencySpec) -> None:
         self.spec = spec
         self._rng = np.random.default_rng([spec.seed, 0x1A7E])
 
-    def acts_from(self, k: int) -> int | None:
+    def delay(self) -> int | None:
+        """The next command's delay in steps (``steps`` + its jitter), or None if it is lost."""
         s = self.spec
         jitter = int(self._rng.integers(0, s.jitter + 1)) if s.jitter else 0
         lost = bool(self._rng.random() < s.loss) if s.loss > 0.0 else False
-        return None if lost else k + s.steps + jitter
+        return None if lost else s.steps + jitter
 
 
 class StaticPolicy:

@@ -32,7 +32,7 @@ from cdpr.config.scenario import Scenario
 from cdpr.protocol import Command, Keys, Sensors, State, Telemetry, Tick
 from cdpr.runtime.service import Node
 from cdpr.runtime.transport import Event, Inbox, log
-from cdpr_sim.hold import Applied, CommandHold, LatencyModel, StaticPolicy, watchdog_steps
+from cdpr_sim.hold import Applied, CommandHold, LatencyModel, StaticPolicy
 from cdpr_sim.models import make_sim
 from cdpr_sim.sensors import SensorConfig, SensorSuite
 
@@ -88,7 +88,7 @@ class SimNode(Node):
         self.base_step = 0
 
     def _new_hold(self) -> CommandHold[Command]:
-        return CommandHold(watchdog_steps(self.watchdog.timeout_ms, self.scenario.dt))
+        return CommandHold(self.watchdog.steps(self.scenario.dt))
 
     def declare(self, session: zenoh.Session, inbox: Inbox) -> list[Any]:
         self._pub, self._telemetry_pub = self.publishers["state"], self.publishers["telemetry"]
@@ -193,23 +193,18 @@ class SimNode(Node):
     def offer_free(self, cmd: Command) -> None:
         """Free-running: a command answering a state already out; it acts from the next step integrated."""
         assert self.hold is not None
-        if cmd.step > self.step or cmd.step >= self.total_steps:
-            self.count("future_commands")
-            self.warn("future_command",
-                      f"dropped controller/command for step {cmd.step}: the sim is at step {self.step}")
-            return
         acts_from = self.step
         if self.latency is not None and cmd.step > self.hold.newest:  # a modelled latency on top of the link's
-            delayed = self.latency.acts_from(cmd.step)
-            if delayed is None:
+            delay = self.latency.delay()
+            if delay is None:
                 self.count("lost_commands")
                 return
-            acts_from = max(acts_from, delayed)
+            acts_from += delay
         if not self.hold.offer(cmd, cmd.step, acts_from) and cmd.step == self.hold.newest:
             self.count("stale_commands")  # a repeated answer (after a resend); a late one: the hold counts it
 
     def on_command(self, cmd: Command) -> None:
-        if self.free:
+        if self.free and cmd.step <= self.step and cmd.step < self.total_steps:
             self.offer_free(cmd)
             return
         if cmd.step < self.step:
@@ -233,11 +228,11 @@ class SimNode(Node):
             return
         if self.hold is not None:  # a command latency: this one acts later (or is lost)
             assert self.latency is not None
-            acts_from = self.latency.acts_from(cmd.step)
-            if acts_from is None:
+            delay = self.latency.delay()
+            if delay is None:
                 self.count("lost_commands")
             else:
-                self.hold.offer(cmd, cmd.step, acts_from)
+                self.hold.offer(cmd, cmd.step, cmd.step + delay)
             self.integrate(cmd, None)
             return
         self.integrate(cmd, None)

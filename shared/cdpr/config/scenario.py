@@ -7,6 +7,7 @@ raises :class:`cdpr.errors.InputError` naming the file and the field. Shipped sc
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Literal
@@ -165,6 +166,10 @@ class WatchdogSpec(Strict):
     decay: FiniteFloat = Field(10.0, ge=0.0, description="static: the platform's speed decays at this rate, 1/s "
                                "(the wrench adds -decay·M·twist; 0: gravity only)")
 
+    def steps(self, dt: float) -> int:
+        """The timeout in steps of ``dt`` (at least 1)."""
+        return max(1, math.ceil(self.timeout_ms * 1e-3 / dt - 1e-9))
+
 
 class CommandLatencySpec(Strict):
     """A deterministic command latency in lock-step (cdpr_sim.hold): the command answering state k acts from
@@ -261,6 +266,15 @@ class ScenarioSpec(Strict):
         if self.controller.output == "lengths" and not self.sim.model.winch:
             raise ValueError(f"controller.output: lengths needs sim.cable_model {' or '.join(WINCH_MODELS)} "
                              f"(winch-driven cables), not {self.sim.cable_model}")
+        latency, watchdog = self.sim.command_latency, self.sim.watchdog
+        if latency is not None:
+            most = latency.steps + latency.jitter
+            limit = watchdog.steps(self.dt)
+            if most >= limit:
+                raise ValueError(
+                    f"sim.command_latency: steps + jitter = {most} steps must stay below the watchdog's "
+                    f"sim.watchdog.timeout_ms = {watchdog.timeout_ms:g} ms ({limit} steps at dt = {self.dt:g} s): a "
+                    "command that old never acts (raise timeout_ms)")
         return self
 
 

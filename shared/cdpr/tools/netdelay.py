@@ -95,9 +95,6 @@ class DelayProxy:
     def __exit__(self, *exc: object) -> None:
         self.close()
 
-    def serve_forever(self) -> None:
-        self._accept()
-
     def _accept(self) -> None:
         while not self._stop:
             try:
@@ -118,6 +115,8 @@ class DelayProxy:
 
     def close(self) -> None:
         self._stop = True
+        with contextlib.suppress(OSError):
+            self._server.shutdown(socket.SHUT_RDWR)  # wakes the accept() under way (Linux)
         self._server.close()
         for s in self._sockets:
             with contextlib.suppress(OSError):

@@ -91,6 +91,8 @@ def _check_sync(kw: dict[str, Any]) -> None:
         raise click.UsageError("--sync free: free-running needs --mode realtime (fast mode is lock-step)")
     if kw["max_lateness"] is not None and not kw["max_lateness"] > 0:
         raise click.UsageError(f"--max-lateness: must be a number of seconds > 0, got {kw['max_lateness']}")
+    if kw["max_lateness"] is not None and kw["mode"] != "realtime":
+        raise click.UsageError("--max-lateness: only realtime sessions keep the wall clock (--mode realtime)")
 
 
 def _leave(code: int, at_once: bool) -> NoReturn:
