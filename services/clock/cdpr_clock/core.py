@@ -63,6 +63,7 @@ class ClockCore:
     watchdog_steps: int = 0  # steps on which the sim's watchdog policy acted
     window: list[tuple[float, bool]] = field(default_factory=list, repr=False)  # (time, late) of the last second
     peak: float = field(default=-math.inf, repr=False)  # the largest lateness since take_peak()
+    waited_for_loop: bool = False  # lock-step realtime: a due tick waited for the sim (reset by the caller)
     free_started: float | None = None  # free-running: the arrival of state 1 (the wall clock's rate from there)
 
     def __post_init__(self) -> None:
@@ -80,7 +81,11 @@ class ClockCore:
     def next_grant(self, now: float) -> tuple[int, int, bool] | None:
         """``(first, until, flush)`` of the tick to issue now, if any (call repeatedly until None)."""
         k = self.issued + 1
-        if self.paused or k >= self.total_steps or (k > 0 and self.reached < max(1, k - self.lookahead)):
+        if self.paused or k >= self.total_steps:
+            return None
+        if k > 0 and self.reached < max(1, k - self.lookahead):
+            if self.realtime and not self.free and self.started_at is not None and now >= self.deadline(k):
+                self.waited_for_loop = True  # tick k is due, the sim is a window behind
             return None
         if k == 0:
             return 0, 0, True  # the handshake (module docstring)

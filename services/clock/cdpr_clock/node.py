@@ -287,6 +287,9 @@ class ClockNode(Node):
             return
         share, n = self.core.late_share(now)
         lags, self.lags = self.lags, []
+        # a due tick that waited for the sim (a window behind) since the last look: the loop is slow; else the
+        # clock itself was late (the machine)
+        loop_bound, self.core.waited_for_loop = self.core.waited_for_loop, False
         behind = max(self.core.take_peak(), self.core.behind(now))
         if self.max_lateness > 0 and behind > self.max_lateness:
             self.abort(f"step {self.core.reached} is {behind:.3f} s behind the wall clock "
@@ -303,9 +306,6 @@ class ClockNode(Node):
             log(self.name, f"free-running is falling behind the wall clock: {what}; the sim's steps take longer "
                 f"than dt = {dt_ms:g} ms (a loaded machine?)")
             return
-        # The sim at the end of its window (lookahead steps behind the ticks): the loop is slow; else the
-        # clock itself was late (the machine).
-        loop_bound = self.core.issued - self.core.reached >= self.core.lookahead
         if not loop_bound:
             log(self.name, f"lock-step realtime is falling behind: {what}; the loop keeps up, the clock's own "
                 "ticks were late (a loaded machine?): try --rt-priority, or --mode fast")
