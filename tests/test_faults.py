@@ -79,39 +79,61 @@ def test_controller_killed_and_replaced_mid_run(session_id: str) -> None:
     assert s["final_position_error"] < 1e-3
 
 
-def test_sim_restart_aborts_the_session(session_id: str) -> None:
+def _restart_the_sim(session_id: str, scenario: str, restart: str, duration: str) -> tuple[dict, str, Watcher]:
+    """A session whose sim (its own process) is killed after 300 steps and replaced by ``cdpr sim restart``:
+    the summary, the clock's log and every state seen."""
     port = free_port()
     endpoint = f"tcp/127.0.0.1:{port}"
     keys = Keys(session_id)
     up = subprocess.Popen(
-        [*CDPR, "up", "caroca_15kg", "--duration", "3", "--session", session_id, "--without", "sim",
-         "--listen", endpoint, "--quiet"],
+        [*CDPR, "up", scenario, "--duration", duration, "--session", session_id, "--without", "sim",
+         "--listen", endpoint, "--quiet", "--rejoin-timeout", "60"],
         stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
     )
     sims: list[subprocess.Popen[str]] = []
     try:
         with zenoh.open(zenoh_config("client", connect=[endpoint])) as z:
             watch = Watcher(z, keys)
-            sim_cmd = [*CDPR, "sim", "caroca_15kg", "--duration", "3", "--session", session_id,
-                       "--zenoh-mode", "client", "--connect", endpoint]
-            sims.append(subprocess.Popen(sim_cmd, stderr=subprocess.DEVNULL, text=True))
-            watch.wait(lambda: len(watch.states) > 200, 60, "200 steps")
+            sim_args = ["--duration", duration, "--session", session_id, "--zenoh-mode", "client",
+                        "--connect", endpoint]
+            sims.append(subprocess.Popen([*CDPR, "sim", scenario, *sim_args], stderr=subprocess.DEVNULL, text=True))
+            watch.wait(lambda: len(watch.states) > 300, 60, "300 steps")
             sims[0].send_signal(signal.SIGKILL)
             sims[0].wait(timeout=10)
-            sims.append(subprocess.Popen(sim_cmd, stderr=subprocess.DEVNULL, text=True))
-            watch.wait(lambda: watch.status is not None and watch.status.state == "aborted", 60, "the abort")
-            assert watch.status is not None
-            assert "sim" in watch.status.reason
-            out, err = up.communicate(timeout=60)
-            sims[1].wait(timeout=30)
+            sims.append(subprocess.Popen([*CDPR, "sim", restart, *sim_args], stderr=subprocess.PIPE, text=True))
+            out, err = up.communicate(timeout=300)
+            _, sim_err = sims[1].communicate(timeout=60)
     finally:
         for p in (up, *sims):
             if p.poll() is None:
                 p.kill()
-    s = last_json_line(out)
+    return last_json_line(out), err + sim_err, watch
+
+
+@pytest.mark.parametrize("scenario", ["caroca_15kg", "caroca_15kg_winch", "caroca_15kg_sag", "caroca_15kg_ups"])
+def test_a_restarted_sim_goes_on_from_the_last_snapshot_bit_for_bit(session_id: str, scenario: str) -> None:
+    """Killed mid-run and started again: the new sim takes up the session's last snapshot (the clock keeps the
+    one of each telemetry block), the clock grants the steps after it again, the session finishes every step,
+    and the states are those of an uninterrupted run, bit for bit (a state published again equals the first)."""
+    s, err, watch = _restart_the_sim(session_id, scenario, scenario, "1.5")
+    assert s["exit_ok"] is True, err[-3000:]
+    assert "joined a session under way: going on from step" in err
+    lost, doubled = watch.check(1500)
+    assert lost == [], lost[:5]
+    assert doubled == [], doubled[:5]  # a state published again (after the restart) equals the first copy
+    whole = subprocess.run([*CDPR, "run", scenario, "--duration", "1.5", "--in-process", "--quiet"],
+                           capture_output=True, text=True, timeout=300, check=True)
+    assert s["state_digest"] == last_json_line(whole.stdout)["state_digest"]
+
+
+def test_a_sim_that_cannot_take_up_the_snapshot_ends_the_session(session_id: str) -> None:
+    """A sim of another cable model cannot go on from the session's snapshot: it says why, starts from step 0,
+    and the clock ends the session (its platform's state is lost)."""
+    s, err, _ = _restart_the_sim(session_id, "caroca_15kg", "caroca_15kg_ups", "3")
     assert s["exit_ok"] is False
-    assert up.returncode == 1
-    assert "restarted" in err
+    assert "cannot go on from the session's step" in err
+    assert "it is of cable model ideal, this sim's is ups" in err
+    assert re.search(r"aborted: the sim restarted: its state went back from step \d+ to step 0", err), err[-3000:]
 
 
 @pytest.mark.parametrize("service", ["controller", "sim"])

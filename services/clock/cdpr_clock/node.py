@@ -18,7 +18,7 @@ import zenoh
 
 from cdpr.config.scenario import Scenario
 from cdpr.errors import InputError
-from cdpr.protocol import SERVICES, ClockState, Keys, Status, Telemetry, Tick
+from cdpr.protocol import SERVICES, ClockState, Keys, Resume, Status, Telemetry, Tick
 from cdpr.protocol.session import encode_session_info
 from cdpr.runtime.service import Node
 from cdpr.runtime.transport import Event, Inbox, log
@@ -75,6 +75,8 @@ class ClockNode(Node):
         self._waiting_since: float | None = None  # the first idle() in state "waiting"
         self._next_wait_log = 0.0
         self._tick: zenoh.Publisher | None = None
+        self._resume: zenoh.Publisher | None = None
+        self.resume: Resume | None = None  # the sim's last snapshot
         self._status: zenoh.Publisher | None = None
         self._info = encode_session_info(scenario)
 
@@ -140,6 +142,7 @@ class ClockNode(Node):
 
     def declare(self, session: zenoh.Session, inbox: Inbox) -> list[Any]:
         self._tick, self._status = self.publishers["tick"], self.publishers["status"]
+        self._resume = self.publishers["resume"]
         return [inbox.watch_liveliness(session, self.keys.alive_all)]
 
     def reply(self, topic: str) -> bytes:
@@ -169,6 +172,8 @@ class ClockNode(Node):
                            f"step {step}; the platform's state is lost", now)
                 return
             self.core.on_state(step, now)
+            if block.resume is not None and block.resume.step == step:
+                self.resume = block.resume  # what a sim that replaces this one will need (docs/faults.md)
             if self.core.finished and self.finished_at is None:
                 self.finish(now)
             return
@@ -180,6 +185,12 @@ class ClockNode(Node):
         if event.topic == "alive":
             self.present.add(service)
             self._gone.pop(service, None)
+            if service == "sim" and self.core.started_at is not None and self.resume is not None \
+                    and self.finished_at is None:
+                # a sim (re)joins a session under way: the last snapshot first, then (below) the grant again;
+                # a sim that kept its own state (a reconnection) ignores it
+                assert self._resume is not None
+                self._resume.put(self.resume.encode())
         else:
             self.present.discard(service)
             if service in self.expected and self.finished_at is None:

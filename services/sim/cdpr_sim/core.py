@@ -44,7 +44,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field
-from typing import Protocol
+from typing import Any, Protocol
 
 import dartpy as dart
 import numpy as np
@@ -141,6 +141,15 @@ class SimModel(Protocol):
 
     def load_cell_tensions(self) -> Array:
         """(m,) what load cells at the frame read: the applied tensions, or the frame-end tensions."""
+        ...
+
+    def snapshot(self) -> dict[str, Any]:
+        """Everything the model needs to go on from this step, bit for bit: :func:`world_snapshot` plus its
+        own state (msgpack-ready: numbers, strings, lists, maps)."""
+        ...
+
+    def restore(self, snapshot: dict[str, Any]) -> None:
+        """Go on from a :meth:`snapshot` of a model of the same scenario (ValueError if it does not fit)."""
         ...
 
 
@@ -309,6 +318,13 @@ class PlatformSim:
         return State(self.step_count, self.t, (*p.tolist(), *matrix_to_quat(R).tolist()), (*v.tolist(), *w.tolist()),
                      tuple(lengths.tolist()), tuple(self._tensions.tolist()), clamped)
 
+    def snapshot(self) -> dict[str, Any]:
+        return world_snapshot(self._world, self.step_count, self._tensions)
+
+    def restore(self, snapshot: dict[str, Any]) -> None:
+        self.step_count, self._tensions = restore_world(self._world, snapshot, self.robot.m)
+        self._snap = self._reads = None
+
     # -- dynamics ---------------------------------------------------------------------------------
     def step(self, tensions: np.ndarray) -> StepReport:
         """Clamp ``tensions`` (m,) to [0, tmax], apply them and the cable damping, integrate one ``dt``.
@@ -376,6 +392,50 @@ def _rotation(x: ArrayLike) -> Array:
         U, _, Vt = np.linalg.svd(R)
         R = U @ Vt
     return R
+
+
+# --------------------------------------------------------------------------------------------------
+# Snapshots: a sim that restarts goes on from the last step it reported (docs/faults.md)
+
+
+def world_snapshot(world: Any, step: int, tensions: Array) -> dict[str, Any]:
+    """The generalized positions and velocities of every skeleton of a DART ``world`` (exact floats), the step
+    and the tensions applied over the step before: what every model's snapshot holds."""
+    skeletons = [world.getSkeleton(i) for i in range(world.getNumSkeletons())]
+    return {"step": int(step), "tensions": tensions.tolist(),
+            "skeletons": [[sk.getPositions().tolist(), sk.getVelocities().tolist()] for sk in skeletons]}
+
+
+def restore_world(world: Any, snapshot: dict[str, Any], m: int) -> tuple[int, Array]:
+    """Put a :func:`world_snapshot` back into ``world``; returns its step and tensions. ValueError naming
+    what does not fit (another robot, another model)."""
+    try:
+        step, skeletons = int(snapshot["step"]), snapshot["skeletons"]
+        tensions = np.array(snapshot["tensions"], dtype=float)
+        if step < 0 or tensions.shape != (m,) or len(skeletons) != world.getNumSkeletons():
+            raise ValueError("another robot or cable model")
+        for i, (q, dq) in enumerate(skeletons):
+            sk = world.getSkeleton(i)
+            q, dq = np.array(q, dtype=float), np.array(dq, dtype=float)
+            if q.shape != (sk.getNumDofs(),) or dq.shape != (sk.getNumDofs(),):
+                raise ValueError(f"skeleton {i} has {sk.getNumDofs()} degrees of freedom")
+            sk.setPositions(q)
+            sk.setVelocities(dq)
+            sk.clearExternalForces()
+    except (KeyError, TypeError) as exc:
+        raise ValueError(f"not a snapshot of this model ({exc})") from None
+    return step, readonly(tensions)
+
+
+def arrays(snapshot: dict[str, Any], *names: str) -> list[Array | None]:
+    """The snapshot's ``names`` as float arrays (None where it holds None)."""
+    out: list[Array | None] = []
+    for name in names:
+        if name not in snapshot:
+            raise ValueError(f"not a snapshot of this model (no {name!r})")
+        value = snapshot[name]
+        out.append(None if value is None else np.array(value, dtype=float))
+    return out
 
 
 # --------------------------------------------------------------------------------------------------

@@ -29,7 +29,7 @@ import numpy as np
 import zenoh
 
 from cdpr.config.scenario import Scenario
-from cdpr.protocol import Command, Keys, Sensors, State, Telemetry, Tick
+from cdpr.protocol import Command, Keys, Resume, Sensors, State, Telemetry, Tick
 from cdpr.runtime.service import Node
 from cdpr.runtime.transport import Event, Inbox, log
 from cdpr_sim.hold import Applied, CommandHold, LatencyModel, StaticPolicy
@@ -99,6 +99,9 @@ class SimNode(Node):
         if event.topic == "tick":
             if (tick := self.decode(event)) is not None:
                 self.on_tick(tick)
+        elif event.topic == "resume":
+            if (resume := self.decode(event)) is not None:
+                self.on_resume(resume)
         elif (cmd := self.decode(event, self.m, self.command_kind)) is not None:
             self.on_command(cmd)
 
@@ -136,10 +139,43 @@ class SimNode(Node):
             self.block_states.append(self._state_msg)
         self._telemetry_pub.put(Telemetry(tuple(self.block_states), tuple(self.block_commands),
                                           tuple(self.block_lags), tuple(self.block_sensors),
-                                          tuple(self.block_lateness)).encode())
+                                          tuple(self.block_lateness), self.snapshot()).encode())
         self.block_states, self.block_commands, self.block_lags, self.block_sensors = [], [], [], []
         self.block_lateness = []
         self.flushed_at = time.monotonic()
+
+    # -- restarting: go on from the session's last snapshot (docs/faults.md) ------------------------
+    def snapshot(self) -> Resume | None:
+        """What a sim that replaces this one needs to go on from the current state (None before it is out)."""
+        if self.published_step != self.step:
+            return None
+        snapshot = self.sim.snapshot()
+        snapshot["clamped"] = self.clamped
+        previous = None if self.sensors is None else self.sensors.previous
+        snapshot["sensors_previous"] = None if previous is None else [previous[0], previous[1].tolist()]
+        return Resume(self.step, self.scenario.spec.sim.cable_model, snapshot)
+
+    def on_resume(self, resume: Resume) -> None:
+        """A session under way (this sim joined it late): take up its last snapshot, before anything is out."""
+        if self.published_step >= 0 or resume.step == self.step:
+            return  # this sim has its own state (a reconnection), or nothing to take up
+        model = self.scenario.spec.sim.cable_model
+        try:
+            if resume.model != model:
+                raise ValueError(f"it is of cable model {resume.model}, this sim's is {model}")
+            if resume.snapshot.get("step") != resume.step:
+                raise ValueError("its step and its snapshot's differ")
+            self.sim.restore(resume.snapshot)
+            clamped, previous = resume.snapshot.get("clamped", 0), resume.snapshot.get("sensors_previous")
+            self.clamped = int(clamped)
+            if self.sensors is not None:
+                self.sensors.previous = None if previous is None else (int(previous[0]), np.array(previous[1]))
+        except (ValueError, TypeError, IndexError) as exc:
+            self.sim = make_sim(self.scenario)  # from the start: the clock sees a state that goes back, says so
+            self.count("bad_resume")
+            log(self.name, f"cannot go on from the session's step {resume.step}: {exc}")
+            return
+        log(self.name, f"joined a session under way: going on from step {self.step} (its last snapshot)")
 
     def on_tick(self, tick: Tick) -> None:
         if self.published_step < 0 and tick.step != self.step:

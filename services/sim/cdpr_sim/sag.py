@@ -32,6 +32,8 @@ Winch drives, modes, sub-steps: :class:`cdpr_sim.winch.WinchSim`.
 
 from __future__ import annotations
 
+from typing import Any
+
 import numpy as np
 from numpy.typing import ArrayLike
 
@@ -65,6 +67,20 @@ class SagSim(WinchSim):
               twist: ArrayLike | None = None) -> None:
         self._warm = self._warm_tension = None
         super().reset(position, rotation, twist)
+
+    def snapshot(self) -> dict[str, Any]:
+        """The winch model's, and the catenary solver's warm starts (they decide the last bits of a solve)."""
+        warm = [None if w is None else [x.tolist() for x in w] for w in (self._warm, self._warm_tension)]
+        return {**super().snapshot(), "warm": warm[0], "warm_tension": warm[1]}
+
+    def restore(self, snapshot: dict[str, Any]) -> None:
+        super().restore(snapshot)
+        try:
+            warm = [None if w is None else (np.array(w[0], dtype=float), np.array(w[1], dtype=float))
+                    for w in (snapshot["warm"], snapshot["warm_tension"])]
+        except (KeyError, TypeError, IndexError):
+            raise ValueError("not a snapshot of the sag model (no warm starts)") from None
+        self._warm, self._warm_tension = warm[0], warm[1]
 
     def _damping_forces(self, g: Geometry, pull: Array, l0_rate: Array) -> Array:
         """c (l̇ − l̇0) along the chord, never more negative than the catenary's pull along it."""

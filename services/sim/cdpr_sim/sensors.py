@@ -123,7 +123,7 @@ class SensorSuite:
     def __init__(self, config: SensorConfig, dt: float) -> None:
         self.config = config
         self.dt = float(dt)
-        self._previous: tuple[int, Array] | None = None  # (step, twist) of the last new step read
+        self.previous: tuple[int, Array] | None = None  # (step, twist) of the last new step read (a sim's snapshot)
         self._last: Sensors | None = None
 
     def read(self, sim: SimModel) -> Sensors:
@@ -131,14 +131,14 @@ class SensorSuite:
         if self._last is not None and self._last.step == state.step:
             return self._last
         twist = np.asarray(state.twist, dtype=float)
-        prev = self._previous
+        prev = self.previous
         if prev is not None and prev[0] == state.step - 1:
             acceleration = (twist[:3] - prev[1][:3]) / self.dt
         else:
             acceleration = np.zeros(3)
         encoders, cells = sim.encoder_lengths(), sim.load_cell_tensions()
         truth = SensorTruth(state.step, state.t, state.rotation, twist, acceleration, encoders, cells)
-        self._previous = (state.step, twist)
+        self.previous = (state.step, twist)
         self._last = measure(truth, self.config)
         return self._last
 

@@ -76,6 +76,7 @@ inputs, bit-identical outputs.
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import Any
 
 import dartpy as dart
 import numpy as np
@@ -91,8 +92,10 @@ from cdpr_sim.core import (
     StepReport,
     check_dt,
     clamp_tensions,
+    restore_world,
     start_pose,
     state_message,
+    world_snapshot,
 )
 
 LINK_MASS = 1e-4  # kg, each of the two virtual links of a leg (module docstring: why)
@@ -246,6 +249,15 @@ class UpsSim:
     def message(self, clamped: int) -> State:
         """The current state as a ``sim/state`` message."""
         return state_message(self.state(), clamped)
+
+    def snapshot(self) -> dict[str, Any]:
+        return world_snapshot(self._world, self.step_count, self._tensions)
+
+    def restore(self, snapshot: dict[str, Any]) -> None:
+        """The legs' frames come from the scenario's initial pose (:meth:`reset`), the same in every sim of
+        the scenario; the rest is in the world."""
+        self.step_count, self._tensions = restore_world(self._world, snapshot, self.robot.m)
+        self._snap = None
 
     def encoder_lengths(self) -> Array:
         """(m,) the legs' lengths."""

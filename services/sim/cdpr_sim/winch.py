@@ -69,7 +69,7 @@ from __future__ import annotations
 import math
 from abc import ABC, abstractmethod
 from dataclasses import dataclass
-from typing import ClassVar
+from typing import Any, ClassVar
 
 import numpy as np
 from numpy.typing import ArrayLike
@@ -86,10 +86,13 @@ from cdpr_sim.core import (
     PlatformBody,
     PlatformState,
     StepReport,
+    arrays,
     check_dt,
     clamp_tensions,
+    restore_world,
     start_pose,
     state_message,
+    world_snapshot,
 )
 
 ACCURACY = 0.3  # ω h of the fastest mode that :func:`substeps_for` allows
@@ -374,6 +377,26 @@ class WinchSim(ABC):
     def message(self, clamped: int) -> State:
         """The current state as a ``sim/state`` message."""
         return state_message(self.state(), clamped)
+
+    def snapshot(self) -> dict[str, Any]:
+        w = self._winch
+        return {**world_snapshot(self._world, self.step_count, self._tensions),
+                "saturated": self.saturated, "stopped": self.stopped, "fallbacks": self.fallbacks,
+                "angle": w.angle.tolist(), "speed": w.speed.tolist(), "integral": w.integral.tolist(),
+                "l0_rate": self._l0_rate.tolist(), "ref": None if self._ref is None else self._ref.tolist(),
+                "frame_tensions": self._frame_tensions.tolist()}
+
+    def restore(self, snapshot: dict[str, Any]) -> None:
+        self.step_count, self._tensions = restore_world(self._world, snapshot, self.robot.m)
+        angle, speed, integral, l0_rate, ref, frame = arrays(snapshot, "angle", "speed", "integral", "l0_rate",
+                                                             "ref", "frame_tensions")
+        if angle is None or speed is None or integral is None or l0_rate is None or frame is None:
+            raise ValueError("not a snapshot of a winch model (no drum state)")
+        self._winch = WinchState(angle, speed, integral)
+        self._l0_rate, self._ref, self._frame_tensions = l0_rate, ref, readonly(frame)
+        self.saturated, self.stopped = int(snapshot["saturated"]), int(snapshot["stopped"])
+        self.fallbacks = int(snapshot["fallbacks"])
+        self._geometry = None
 
     def encoder_lengths(self) -> Array:
         """(m,) the unstretched lengths the winches have paid out, r θ (what drum encoders measure)."""

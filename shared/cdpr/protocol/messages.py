@@ -481,7 +481,8 @@ class Telemetry:
     for the clock's grant), and the controller's ``solve_time`` when it sent one; ``sensors``: the
     sensor readings taken with the states (empty without sensors); ``lateness``: in free-running realtime,
     the seconds each step's integration started after its wall-clock deadline (one per command; empty in
-    lock-step). On the wire every column is a flat array (see docs/protocol.md).
+    lock-step); ``resume``: the sim's snapshot at the block's last state (:class:`Resume`). On the wire every
+    column is a flat array (see docs/protocol.md).
     """
 
     states: tuple[State, ...]
@@ -489,6 +490,7 @@ class Telemetry:
     lags: tuple[float, ...] = ()
     sensors: tuple[Sensors, ...] = ()
     lateness: tuple[float, ...] = ()
+    resume: Resume | None = None  # what a restarted sim needs to go on from the block's last state
 
     def encode(self) -> bytes:
         s, c, r = self.states, self.commands, self.sensors
@@ -507,6 +509,8 @@ class Telemetry:
         }
         if self.lateness:
             msg["command"]["lateness"] = _floats(self.lateness)
+        if self.resume is not None:
+            msg["resume"] = self.resume.as_map()
         if r:
             msg["sensors"] = {
                 "step": [x.step for x in r], "t": [x.t for x in r], "encoders": _flat([x.encoders for x in r]),
@@ -557,7 +561,39 @@ class Telemetry:
             enc, cells = _rows(r, "encoders", j, m), _rows(r, "load_cells", j, m)
             acc, gyro = _rows(r, "accel", j, 3), _rows(r, "gyro", j, 3)
             sensors = tuple(Sensors(r_steps[i], r_t[i], enc[i], cells[i], acc[i], gyro[i]) for i in range(j))
-        return cls(states, commands, lags, sensors, lateness)
+        resume = Resume.from_map(msg["resume"], "resume: ") if "resume" in msg else None
+        return cls(states, commands, lags, sensors, lateness, resume)
+
+
+@dataclass(frozen=True, slots=True)
+class Resume:
+    """``session/resume``: what a sim needs to go on from step ``step`` of a session under way: the ``snapshot``
+    its model took there (``model``: the cable model's name; its other fields are the model's own, see
+    docs/faults.md). The sim sends one with every telemetry block (for the block's last state), the clock
+    keeps the last and publishes it when a sim (re)joins a session under way, just before the grant."""
+
+    step: int
+    model: str
+    snapshot: dict[str, Any]
+
+    def encode(self) -> bytes:
+        return pack(self.as_map())
+
+    def as_map(self) -> dict[str, Any]:
+        return {"step": self.step, "model": self.model, "snapshot": self.snapshot}
+
+    @classmethod
+    def from_map(cls, msg: Any, where: str = "") -> Resume:
+        if not isinstance(msg, dict):
+            raise ProtocolError(f"{where}expected a map")
+        step, model, snapshot = _int(msg, "step"), _field(msg, "model"), _field(msg, "snapshot")
+        if not isinstance(model, str) or not isinstance(snapshot, dict):
+            raise ProtocolError(f"{where}model, snapshot: expected a string and a map")
+        return cls(step, model, snapshot)
+
+    @classmethod
+    def decode(cls, payload: bytes) -> Resume:
+        return cls.from_map(unpack(payload))
 
 
 @dataclass(frozen=True, slots=True)

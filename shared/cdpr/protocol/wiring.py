@@ -36,6 +36,7 @@ TOPICS: dict[str, Topic] = {
     "telemetry": Topic("sim/telemetry", "Telemetry", "bad_telemetry"),
     "sensors": Topic("sim/sensors", "Sensors", "bad_sensors"),
     "info": Topic("session/info", "SessionInfo", transport="queryable"),
+    "resume": Topic("session/resume", "Resume", "bad_resume"),
     "stats": Topic("stats/{node}", "ServiceStats", "bad_stats"),
     "alive": Topic("alive/{node}", "", transport="liveliness"),
     "ping": Topic("ping/{node}", "", transport="queryable"),  # answers a get with its payload (cdpr ping)
@@ -52,8 +53,8 @@ class NodeWiring:
 EVERY_NODE = NodeWiring(subscribes=("status",), publishes=("stats", "alive", "ping"))
 
 WIRING: dict[str, NodeWiring] = {
-    "clock": NodeWiring(subscribes=("telemetry", "stats"), publishes=("tick", "status", "info")),
-    "sim": NodeWiring(subscribes=("tick", "command"), publishes=("state", "telemetry", "sensors")),
+    "clock": NodeWiring(subscribes=("telemetry", "stats"), publishes=("tick", "status", "info", "resume")),
+    "sim": NodeWiring(subscribes=("tick", "command", "resume"), publishes=("state", "telemetry", "sensors")),
     "trajectory": NodeWiring(subscribes=("tick",), publishes=("setpoints",)),
     "controller": NodeWiring(subscribes=("state", "setpoints"), publishes=("command",)),
     "recorder": NodeWiring(subscribes=("telemetry", "setpoints"), publishes=()),
