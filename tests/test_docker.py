@@ -17,6 +17,7 @@ import os
 import re
 import shlex
 import shutil
+import signal
 import subprocess
 import sys
 import time
@@ -379,3 +380,69 @@ def test_realtime_session(project: list[Project], tmp_path: Path) -> None:
 def test_no_volume_left_behind(engine: set[str]) -> None:
     """After every session above (and their `down`): not one Docker volume more than before."""
     assert volumes() - engine == set()
+
+
+def _kill_the_sim_mid_session(p: Project, tmp_path: Path, kill: object) -> tuple[int, str]:
+    """A realtime session of the compose stack whose sim container is killed (``kill()``) after 1 000 steps:
+    ``up``'s exit code and output."""
+    import zenoh
+
+    from cdpr.protocol import Keys
+    from cdpr.runtime.transport import zenoh_config
+    from cdpr.tools.soak import SessionWatcher
+
+    out = (tmp_path / "up.log").open("w")
+    up = subprocess.Popen(p.session_command(), stdout=out, stderr=subprocess.STDOUT, env=p.env, cwd=ROOT)
+    try:
+        _wait_for("the router", lambda: _try(lambda: p.inspect("router")["State"]["Health"]["Status"]) == "healthy",
+                  180, p.report)
+        with zenoh.open(zenoh_config("client", connect=[f"tcp/127.0.0.1:{p.port}"])) as z:
+            watch = SessionWatcher(z, Keys(p.session))
+            _wait_for("1000 steps", lambda: len(watch.states) > 1000, 180, p.report)
+            kill()  # type: ignore[operator]
+            code = up.wait(timeout=SESSION_TIMEOUT)
+    finally:
+        if up.poll() is None:
+            up.kill()
+            up.wait()
+        out.close()
+    return code, (tmp_path / "up.log").read_text()
+
+
+def test_a_sim_container_killed_for_good_ends_the_session(project: list[Project], tmp_path: Path) -> None:
+    """`docker kill`: a stop Docker's restart policy leaves alone. The clock waits CDPR_REJOIN_TIMEOUT, then
+    ends the session naming the sim; `up` returns 1 and the recording holds every step before."""
+    p = Project(tmp_path, CDPR_MODE="realtime", CDPR_ARGS="--duration 6", CDPR_REJOIN_TIMEOUT="5")
+    project.append(p)
+    code, log = _kill_the_sim_mid_session(p, tmp_path, lambda: _run(["docker", "kill", p.container("sim")]))
+    assert code == 1, log[-3000:] + p.report()
+    m = re.search(r"\[clock\] aborted: sim left the session at step (\d+) and did not come back within 5 s", log)
+    assert m, log[-3000:] + p.report()
+    assert p.wait_exit("recorder") == 0
+    summary = host_report(p.recordings / f"{p.session}.rrd", tmp_path / "report")
+    assert summary["steps"] == int(m.group(1)), summary
+
+
+def test_a_sim_container_that_crashes_comes_back_and_the_session_goes_on(project: list[Project],
+                                                                        tmp_path: Path) -> None:
+    """The sim's process killed (a crash: SIGKILL from outside): `restart: on-failure` starts the container again,
+    the new sim goes on from the session's last snapshot, and the session finishes every step with the states
+    of an uninterrupted run (same digest)."""
+    p = Project(tmp_path, CDPR_MODE="realtime", CDPR_ARGS="--duration 4")
+    project.append(p)
+
+    def crash() -> None:
+        os.kill(int(p.inspect("sim")["State"]["Pid"]), signal.SIGKILL)
+
+    code, log = _kill_the_sim_mid_session(p, tmp_path, crash)
+    assert code == 0, log[-3000:] + p.report()
+    assert finished(log) == 4000
+    assert p.inspect("sim")["RestartCount"] == 1
+    assert "joined a session under way: going on from step" in p.logs("sim")
+    assert p.wait_exit("recorder") == 0
+    summary = host_report(p.recordings / f"{p.session}.rrd", tmp_path / "report")
+    assert summary["steps"] == 4000
+    assert summary["recorded_states"] == 4001  # every step once
+    whole = _run([sys.executable, "-m", "cdpr", "run", "caroca_15kg", "--duration", "4", "--in-process", "--quiet"],
+                 timeout=300, env=HOST_ENV)
+    assert summary["state_digest"] == json.loads(whole.stdout.strip().splitlines()[-1])["state_digest"]
