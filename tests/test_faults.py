@@ -79,7 +79,8 @@ def test_controller_killed_and_replaced_mid_run(session_id: str) -> None:
     assert s["final_position_error"] < 1e-3
 
 
-def _restart_the_sim(session_id: str, scenario: str, restart: str, duration: str) -> tuple[dict, str, Watcher]:
+def _restart_the_sim(session_id: str, scenario: str, restart: str, duration: str,
+                     *extra: str) -> tuple[dict, str, Watcher]:
     """A session whose sim (its own process) is killed after 300 steps and replaced by ``cdpr sim restart``:
     the summary, the clock's log and every state seen."""
     port = free_port()
@@ -87,7 +88,7 @@ def _restart_the_sim(session_id: str, scenario: str, restart: str, duration: str
     keys = Keys(session_id)
     up = subprocess.Popen(
         [*CDPR, "up", scenario, "--duration", duration, "--session", session_id, "--without", "sim",
-         "--listen", endpoint, "--quiet", "--rejoin-timeout", "60"],
+         "--listen", endpoint, "--quiet", "--rejoin-timeout", "60", *extra],
         stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
     )
     sims: list[subprocess.Popen[str]] = []
@@ -111,11 +112,14 @@ def _restart_the_sim(session_id: str, scenario: str, restart: str, duration: str
 
 
 @pytest.mark.parametrize("scenario", ["caroca_15kg", "caroca_15kg_winch", "caroca_15kg_sag", "caroca_15kg_ups"])
-def test_a_restarted_sim_goes_on_from_the_last_snapshot_bit_for_bit(session_id: str, scenario: str) -> None:
+def test_a_restarted_sim_goes_on_from_the_last_snapshot_bit_for_bit(session_id: str, scenario: str,
+                                                                     tmp_path: Path) -> None:
     """Killed mid-run and started again: the new sim takes up the session's last snapshot (the clock keeps the
     one of each telemetry block), the clock grants the steps after it again, the session finishes every step,
-    and the states are those of an uninterrupted run, bit for bit (a state published again equals the first)."""
-    s, err, watch = _restart_the_sim(session_id, scenario, scenario, "1.5")
+    and the states are those of an uninterrupted run, bit for bit (a state published again equals the first);
+    the recording has every step once, and the same digest."""
+    rrd = tmp_path / "restart.rrd"
+    s, err, watch = _restart_the_sim(session_id, scenario, scenario, "1.5", "--rrd", str(rrd))
     assert s["exit_ok"] is True, err[-3000:]
     assert "joined a session under way: going on from step" in err
     lost, doubled = watch.check(1500)
@@ -124,6 +128,11 @@ def test_a_restarted_sim_goes_on_from_the_last_snapshot_bit_for_bit(session_id: 
     whole = subprocess.run([*CDPR, "run", scenario, "--duration", "1.5", "--in-process", "--quiet"],
                            capture_output=True, text=True, timeout=300, check=True)
     assert s["state_digest"] == last_json_line(whole.stdout)["state_digest"]
+    report = subprocess.run([*CDPR, "report", str(rrd), "-o", str(tmp_path / "report")], capture_output=True,
+                            text=True, timeout=300, check=True)
+    summary = last_json_line(report.stdout)["summary"]
+    assert summary["recorded_states"] == 1501
+    assert summary["state_digest"] == s["state_digest"]
 
 
 def test_a_sim_that_cannot_take_up_the_snapshot_ends_the_session(session_id: str) -> None:
@@ -134,6 +143,39 @@ def test_a_sim_that_cannot_take_up_the_snapshot_ends_the_session(session_id: str
     assert "cannot go on from the session's step" in err
     assert "it is of cable model ideal, this sim's is ups" in err
     assert re.search(r"aborted: the sim restarted: its state went back from step \d+ to step 0", err), err[-3000:]
+
+
+def test_a_restarted_trajectory_changes_nothing(session_id: str) -> None:
+    """The trajectory is stateless: killed mid-run and started again, it publishes the setpoints again from the
+    pending step (the clock's repeated grant), and the states are those of an uninterrupted run."""
+    port = free_port()
+    endpoint = f"tcp/127.0.0.1:{port}"
+    up = subprocess.Popen([*CDPR, "up", "caroca_15kg", "--duration", "1.5", "--session", session_id, "--without",
+                           "trajectory", "--listen", endpoint, "--quiet"],
+                          stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    args = ["--duration", "1.5", "--session", session_id, "--zenoh-mode", "client", "--connect", endpoint]
+    first = second = None
+    try:
+        with zenoh.open(zenoh_config("client", connect=[endpoint])) as z:
+            watch = Watcher(z, Keys(session_id))
+            first = subprocess.Popen([*CDPR, "trajectory", "caroca_15kg", *args], stderr=subprocess.DEVNULL)
+            watch.wait(lambda: len(watch.states) > 300, 60, "300 steps")
+            first.send_signal(signal.SIGKILL)
+            first.wait(timeout=10)
+            watch.wait(lambda: watch.status is not None and watch.status.state == "paused", 30, "the pause")
+            second = subprocess.Popen([*CDPR, "trajectory", "caroca_15kg", *args], stderr=subprocess.DEVNULL)
+            out, err = up.communicate(timeout=300)
+            second.wait(timeout=60)
+    finally:
+        for p in (up, first, second):
+            if p is not None and p.poll() is None:
+                p.kill()
+    s = last_json_line(out)
+    assert s["exit_ok"] is True, err[-3000:]
+    assert watch.check(1500) == ([], [])
+    whole = subprocess.run([*CDPR, "run", "caroca_15kg", "--duration", "1.5", "--in-process", "--quiet"],
+                           capture_output=True, text=True, timeout=300, check=True)
+    assert s["state_digest"] == last_json_line(whole.stdout)["state_digest"]
 
 
 @pytest.mark.parametrize("service", ["controller", "sim"])
