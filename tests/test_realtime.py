@@ -419,3 +419,41 @@ def test_a_modelled_latency_adds_to_a_free_running_link(tmp_path: Path, session_
     s = last_json_line(run.stdout)
     assert s["command_age_p50"] >= 5  # the model's 5 steps, plus whatever the loopback adds
     assert s["watchdog_steps"] == 0
+
+
+SLOW_CONTROLLER = """
+import sys, time
+sys.path.insert(0, {examples!r})
+from remote_controller import PDGravity
+
+
+class Slow(PDGravity):
+    def step(self, state, setpoint):  # 2.5 ms per answer: a state every 1 ms piles up
+        time.sleep(0.0025)
+        return super().step(state, setpoint)
+
+
+Slow().main()
+"""
+
+
+def test_a_slow_sdk_controller_answers_the_newest_state_in_free_running_mode(tmp_path: Path, session_id: str) -> None:
+    """An SDK controller slower than dt does not work through a backlog of old states (whose commands would be
+    too old to act, and the watchdog would hold the platform): it answers the newest one (keep last)."""
+    script = tmp_path / "slow.py"
+    script.write_text(SLOW_CONTROLLER.format(examples=str(ROOT / "examples")), encoding="utf-8")
+    port = free_port()
+    endpoint = f"tcp/127.0.0.1:{port}"
+    up = _up("caroca_15kg", session_id, endpoint, "--duration", "1.5", "--mode", "realtime", "--sync", "free")
+    ctrl = subprocess.Popen([sys.executable, str(script), "--connect", endpoint, "--session", session_id],
+                            stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
+    try:
+        out, err = up.communicate(timeout=120)
+        _finish(ctrl)
+    finally:
+        _kill(up, ctrl)
+    s = last_json_line(out)
+    assert s["exit_ok"] is True, err[-3000:]
+    assert s["watchdog_steps"] == 0, s
+    assert s["command_age_p50"] <= 10, s  # ~3 steps of answer + the loopback
+    assert s["rms_position_error"] < 2e-3, s

@@ -204,6 +204,7 @@ class _ControllerNode(Node):
 
     name = "controller"  # its topics are the controller's row of the wiring table (state and setpoints are
     #                      declared before session/info is fetched: queued until then)
+    keep_last = ("state",)  # behind (a slow step, a stall), it answers the newest state: docs/realtime.md
 
     def __init__(self, ctrl: RemoteController, keys: Keys, stop: StopFlag, fetch: bool,
                  info_timeout: float | None, idle_timeout: float | None) -> None:

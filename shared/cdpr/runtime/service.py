@@ -29,7 +29,7 @@ import signal
 import threading
 import time
 from collections import deque
-from collections.abc import Callable
+from collections.abc import Callable, Iterable
 from typing import TYPE_CHECKING, Any
 
 import zenoh
@@ -63,6 +63,9 @@ class Node:
         super().__init_subclass__(**kwargs)
         if (row := WIRING.get(cls.name)) is not None:
             cls.subscribes, cls.publishes = row.subscribes, row.publishes
+    # Queued nodes: topics of which only the newest event of a batch is handled (ROS's "keep last 1"): a
+    # controller that fell behind answers the newest state, not a backlog of old ones.
+    keep_last: tuple[str, ...] = ()
     # What this node checks of its scenario when it loads it (cdpr.config.scenario.load_scenario).
     scenario_checks: tuple[str, ...] = ()
 
@@ -146,6 +149,16 @@ def pair(node: Node, pairing: Pairing, event: Event, m: int | None) -> tuple[Sta
         return None if state is None else pairing.on_state(state)
     block = node.decode(event)
     return None if block is None else pairing.on_setpoints(block)
+
+
+def newest_only(events: Iterable[Event], topics: tuple[str, ...]) -> Iterable[Event]:
+    """``events`` without those of ``topics`` that a later event of the same topic supersedes (all of them
+    when ``topics`` is empty)."""
+    if not topics:
+        return events
+    batch = list(events)
+    last = {e.topic: i for i, e in enumerate(batch) if e.topic in topics}
+    return [e for i, e in enumerate(batch) if e.topic not in topics or last[e.topic] == i]
 
 
 def set_realtime_priority(priority: int, inherited: bool = True) -> None:
@@ -405,7 +418,7 @@ def serve(node: Node, conf: zenoh.Config, stop: StopFlag | None = None) -> int:
                     raise dispatcher.error
             else:
                 while not node.done and not stop:
-                    for event in inbox.drain(node.timeout(time.monotonic())):
+                    for event in newest_only(inbox.drain(node.timeout(time.monotonic())), node.keep_last):
                         on_event(event)
                         if node.done or stop:  # a signal must not wait for a backlog to drain
                             break
