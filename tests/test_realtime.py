@@ -33,6 +33,7 @@ from cdpr.protocol import Keys, State, Telemetry
 from cdpr.runtime.transport import zenoh_config
 from cdpr.tools.bench.loops import SleeperProbe
 from cdpr.tools.netdelay import DelayProxy
+from cdpr.tools.ping import ping
 from conftest import CDPR, ROOT, free_port, last_json_line
 
 pytestmark = pytest.mark.slow
@@ -92,6 +93,16 @@ def _kill(*procs: subprocess.Popen[str] | None) -> None:
             p.wait()
 
 
+def _outcome(up: subprocess.Popen[str], ctrl: subprocess.Popen[str] | None, timeout: float = 300.0) -> tuple[str, str]:
+    """``up``'s stdout and stderr once it has ended, and the controller's end (neither outlives the test)."""
+    try:
+        out, err = up.communicate(timeout=timeout)
+        _finish(ctrl)
+    finally:
+        _kill(up, ctrl)
+    return out, err
+
+
 def _wait(predicate: Any, timeout: float, what: str) -> None:
     deadline = time.monotonic() + timeout
     while not predicate():
@@ -125,8 +136,6 @@ def _free_run_through_the_link(session_id: str, tmp_path: Path) -> tuple[dict[st
         ctrl = None
         try:
             with zenoh.open(zenoh_config("client", connect=[f"tcp/127.0.0.1:{proxy.port}"])) as z:
-                from cdpr.tools.ping import ping
-
                 _wait(lambda: any(r.ok for r in z.get(Keys(session_id).topic("ping", "sim"), timeout=1.0)), 60,
                       "the sim")
                 trips = ping(z, Keys(session_id), "sim", count=50, info_timeout=10.0).round_trips
@@ -164,11 +173,7 @@ def test_free_running_through_a_1ms_link_keeps_the_wall_clock(session_id: str, t
         path = _scenario(tmp_path, f"latency_{d}", sim__command_latency={"steps": d, "seed": 1})
         up = _up(path, f"{session_id}d{d}", endpoint, "--duration", "5")
         ctrl = _remote_controller(f"{session_id}d{d}", endpoint)
-        try:
-            out, err = up.communicate(timeout=300)
-            _finish(ctrl)
-        finally:
-            _kill(up, ctrl)
+        out, err = _outcome(up, ctrl, 300)
         det = last_json_line(out)
         assert det["exit_ok"] is True, err[-3000:]
         rms.append(det["rms_position_error"])
@@ -182,11 +187,7 @@ def test_lock_step_realtime_through_a_1ms_link_says_why_within_a_second(session_
     with DelayProxy(("127.0.0.1", 0), ("127.0.0.1", port), 0.001) as proxy:
         up = _up("caroca_15kg", session_id, endpoint, "--duration", "2", "--mode", "realtime")
         ctrl = _remote_controller(session_id, f"tcp/127.0.0.1:{proxy.port}")
-        try:
-            out, err = up.communicate(timeout=120)
-            _finish(ctrl)
-        finally:
-            _kill(up, ctrl)
+        out, err = _outcome(up, ctrl, 120)
     lines = [ln for ln in err.splitlines() if "falling behind" in ln]
     assert len(lines) == 1, err[-3000:]  # once
     line = lines[0]
@@ -206,11 +207,7 @@ def test_max_lateness_aborts_a_session_that_falls_behind(session_id: str) -> Non
         up = _up("caroca_15kg", session_id, endpoint, "--duration", "5", "--mode", "realtime",
                  "--max-lateness", "0.2")
         ctrl = _remote_controller(session_id, f"tcp/127.0.0.1:{proxy.port}")
-        try:
-            _out, err = up.communicate(timeout=120)
-            _finish(ctrl)
-        finally:
-            _kill(up, ctrl)
+        _, err = _outcome(up, ctrl, 120)
     assert up.returncode == 1
     assert re.search(r"aborted: step \d+ is 0\.\d+ s behind the wall clock \(--max-lateness 0.2 s\)", err), err[-3000:]
 
@@ -447,11 +444,7 @@ def test_a_slow_sdk_controller_answers_the_newest_state_in_free_running_mode(tmp
     up = _up("caroca_15kg", session_id, endpoint, "--duration", "1.5", "--mode", "realtime", "--sync", "free")
     ctrl = subprocess.Popen([sys.executable, str(script), "--connect", endpoint, "--session", session_id],
                             stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
-    try:
-        out, err = up.communicate(timeout=120)
-        _finish(ctrl)
-    finally:
-        _kill(up, ctrl)
+    out, err = _outcome(up, ctrl, 120)
     s = last_json_line(out)
     assert s["exit_ok"] is True, err[-3000:]
     assert s["watchdog_steps"] == 0, s
