@@ -269,8 +269,6 @@ class SimNode(Node):
                 self.count("lost_commands")
             else:
                 self.hold.offer(cmd, cmd.step, cmd.step + delay)
-            self.integrate(cmd, None)
-            return
         self.integrate(cmd, None)
 
     def select(self, k: int) -> tuple[Command, str]:
