@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import math
 import os
@@ -38,11 +39,11 @@ def bench(tmp_path_factory: pytest.TempPathFactory) -> tuple[dict, str]:
 
 def test_top_level_and_machine(bench: tuple[dict, str]) -> None:
     r, _ = bench
-    assert r["version"] == 4
+    assert r["version"] == 5
     assert r["quick"] is True
     assert r["scenario"] == "caroca_15kg"
     for key in ("plan", "machine", "started", "elapsed_s", "monolithic", "distributed", "loops", "deliveries",
-                "startup", "zenoh_rtt", "realtime", "tda", "scaling", "targets"):
+                "startup", "zenoh_rtt", "realtime", "tda", "scaling", "mujoco", "targets"):
         assert key in r, key
     m = r["machine"]
     assert isinstance(m["nproc"], int)
@@ -50,7 +51,7 @@ def test_top_level_and_machine(bench: tuple[dict, str]) -> None:
     assert isinstance(m["cpu_model"], str)
     assert len(m["loadavg"]) == 3
     assert len(m["loadavg_end"]) == 3
-    parts = ["loops", "startup", "zenoh_rtt", "realtime", "tda", "scaling"]
+    parts = ["loops", "startup", "zenoh_rtt", "realtime", "tda", "scaling", "mujoco"]
     assert list(m["loadavg_by_part"]) == parts
     assert all(isinstance(x, float) and x >= 0 for x in m["loadavg_by_part"].values())
     assert _positive(r["elapsed_s"])
@@ -225,3 +226,54 @@ def test_process_cpu_by_role_and_none_once_a_child_has_exited() -> None:
     finally:
         child.kill()
         child.wait()
+
+
+def test_mujoco_agrees_with_the_project_s_dynamics_step_by_step() -> None:
+    """An independent check of eq. 5: MuJoCo's acceleration of the peer model (cdpr.tools.bench.mujoco_peer)
+    equals cdpr.mechanics.dynamics.forward_dynamics for the same pose, twist and tensions, cable damping
+    included (MuJoCo's tendon damping)."""
+    import mujoco
+
+    from cdpr.mechanics.dynamics import forward_dynamics
+    from cdpr.mechanics.kinematics import cable_length_rates, inverse_kinematics
+    from cdpr.mechanics.rotation import quat_to_matrix
+    from cdpr.tools.bench.mujoco_peer import MujocoPlant
+
+    base = load_scenario("caroca_15kg")
+    robot = base.robot.replace(cable_damping=20.0)  # a damping that shows
+    plant = MujocoPlant(dataclasses.replace(base, robot=robot))
+    rng = np.random.default_rng(3)
+    for _ in range(5):
+        p = np.array([0.3, -0.2, 0.7]) + 0.1 * rng.standard_normal(3)
+        q = rng.standard_normal(4)
+        q /= np.linalg.norm(q)
+        q = 0.9 * np.array([0.0, 0.0, 0.0, 1.0]) + 0.1 * q  # near level
+        q /= np.linalg.norm(q)
+        R = quat_to_matrix(q)
+        twist = 0.3 * rng.standard_normal(6)
+        f = 20.0 + 30.0 * rng.random(robot.m)
+        d = plant.data
+        d.qpos[:] = [*p, q[3], q[0], q[1], q[2]]
+        d.qvel[:3], d.qvel[3:] = twist[:3], R.T @ twist[3:]  # a free joint's angular velocity: body frame
+        d.ctrl[:] = f
+        mujoco.mj_forward(plant.model, d)
+        kin = inverse_kinematics(robot, p, R)
+        rates = cable_length_rates(kin, twist)
+        expected = forward_dynamics(robot, R, twist, kin.wrench_matrix @ (f + robot.cable_damping * rates))
+        got = np.r_[d.qacc[:3], R @ d.qacc[3:]]
+        np.testing.assert_allclose(got, expected, rtol=1e-9, atol=1e-9)
+
+
+def test_the_mujoco_peer_in_the_bench(bench: tuple[dict, str]) -> None:
+    r, text = bench
+    mj = r["mujoco"]
+    assert mj["available"] is True
+    assert _positive(mj["steps_per_s"])
+    assert _positive(mj["monolithic_steps_per_s"])
+    assert mj["monolithic_to_peer"] == pytest.approx(mj["monolithic_steps_per_s"] / mj["steps_per_s"])
+    agree = mj["agreement"]
+    assert agree["steps"] == load_scenario("caroca_15kg").total_steps
+    assert agree["max_position_difference_m"] < 5e-4  # two integrators, one controller: tens of µm
+    assert agree["max_orientation_difference_rad"] < 1e-5
+    assert "7 the MuJoCo peer" in text
+    assert "monolithic/mujoco_peer>=1.0" in r["targets"]

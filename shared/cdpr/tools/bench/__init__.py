@@ -118,6 +118,8 @@ def targets(result: dict[str, Any]) -> dict[str, dict[str, Any]]:
         qp, diff = tda8["methods"]["qp"]["median_us"], tda8["qp_max_difference_N"]
         out["qp_8_cables_median_us<=50"] = target(qp, qp <= 50.0)
         out["qp_same_optimum<=1e-6"] = target(diff, diff <= 1e-6)
+    if (mj := result.get("mujoco", {})).get("available"):
+        out["monolithic/mujoco_peer>=1.0"] = target(x := mj["monolithic_to_peer"], x >= 1.0)
     return out
 
 
@@ -139,7 +141,7 @@ def run_bench(plan: BenchPlan, scenario: str = "caroca_15kg", out: Path | None =
 
     def part(name: str, message: str) -> None:
         load[name] = os.getloadavg()[0]
-        log(f"{len(load)}/6 {message}")
+        log(f"{len(load)}/7 {message}")
 
     part("loops", f"distributed loop: multi-process, recording (.rrd; .rrd and .mcap), in-process (x "
                   f"{plan.loop_repeats}), each after the monolithic loop ({plan.mono_steps} steps)")
@@ -167,6 +169,11 @@ def run_bench(plan: BenchPlan, scenario: str = "caroca_15kg", out: Path | None =
         "sessions": bench_sessions(scenario, plan.session_counts, plan.session_duration),
         "cables": bench_cables(plan.cable_counts, plan.cable_duration),
     }
+    part("mujoco", f"the MuJoCo peer: the same controller and trajectory on MuJoCo (x {plan.loop_repeats}), "
+                   "and the two engines' agreement")
+    from cdpr.tools.bench.mujoco_peer import bench_mujoco
+
+    result["mujoco"] = bench_mujoco(sc, plan.mono_steps, max(plan.loop_repeats, 1))
     result["machine"]["loadavg_end"] = list(os.getloadavg())
     result["elapsed_s"] = time.monotonic() - started
     result["targets"] = targets(result)
@@ -276,6 +283,20 @@ def table(r: dict[str, Any]) -> str:
     for c in r["scaling"]["cables"]:
         lines.append(f"    {c['cables']:<10d}{_fmt(c['steps_per_s']):>16s}{'':>12s}"
                      f"{_fmt(c['cpu_us_per_step']):>14s}")
+    lines += ["", "7 the MuJoCo peer: the same controller and trajectory cores, MuJoCo physics (RK4)"]
+    mj = r.get("mujoco") or {"available": False, "reason": "not run"}
+    if mj["available"]:
+        agree = mj["agreement"]
+        lines += [f"    {name:48s} {value:>22s}" for name, value in (
+            (f"MuJoCo {mj['mujoco']} peer loop, steps/s", _fmt(mj["steps_per_s"])),
+            ("monolithic loop in the same minutes, steps/s", _fmt(mj["monolithic_steps_per_s"])),
+            ("monolithic / peer", _fmt(mj["monolithic_to_peer"], 2)),
+            (f"the engines' difference ({agree['steps']} steps): position",
+             f"{1e6 * agree['max_position_difference_m']:.1f} um"),
+            ("    orientation", f"{agree['max_orientation_difference_rad']:.2e} rad"),
+        )]
+    else:
+        lines.append(f"    {mj['reason']}")
     lines += ["", "targets"]
     lines += [target_line(name, t) for name, t in r["targets"].items()]
     return "\n".join(lines)

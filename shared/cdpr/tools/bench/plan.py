@@ -5,9 +5,10 @@ from __future__ import annotations
 import sys
 from dataclasses import dataclass
 
-BENCH_VERSION = 4  # 2: loop variants (recording, in-process), deliveries, start-up; 3: the recorder writing
+BENCH_VERSION = 5  # 2: loop variants (recording, in-process), deliveries, start-up; 3: the recorder writing
 # an .rrd and an .mcap (loops.multi_process_recording_both, loops.recording_both_cost, its target); 4: the
-# monolithic loop measured before each run of a variant (M A M B M C M D), no longer first and apart
+# monolithic loop measured before each run of a variant (M A M B M C M D), no longer first and apart; 5: the
+# MuJoCo peer (mujoco: its loop beside the monolithic one, the engines' agreement; its target)
 
 
 @dataclass(frozen=True)
