@@ -79,36 +79,35 @@ def test_controller_killed_and_replaced_mid_run(session_id: str) -> None:
     assert s["final_position_error"] < 1e-3
 
 
-def _restart_the_sim(session_id: str, scenario: str, restart: str, duration: str,
-                     *extra: str) -> tuple[dict, str, Watcher]:
-    """A session whose sim (its own process) is killed after 300 steps and replaced by ``cdpr sim restart``:
-    the summary, the clock's log and every state seen."""
+def _restart(session_id: str, service: str, scenario: str, restart: str, duration: str,
+             *extra: str) -> tuple[dict, str, Watcher]:
+    """A session whose ``service`` (its own process) is killed after 300 steps and replaced by ``cdpr service
+    restart``: the summary, the clock's and the replacement's logs, and every state seen."""
     port = free_port()
     endpoint = f"tcp/127.0.0.1:{port}"
     keys = Keys(session_id)
     up = subprocess.Popen(
-        [*CDPR, "up", scenario, "--duration", duration, "--session", session_id, "--without", "sim",
+        [*CDPR, "up", scenario, "--duration", duration, "--session", session_id, "--without", service,
          "--listen", endpoint, "--quiet", "--rejoin-timeout", "60", *extra],
         stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
     )
-    sims: list[subprocess.Popen[str]] = []
+    procs: list[subprocess.Popen[str]] = []
     try:
         with zenoh.open(zenoh_config("client", connect=[endpoint])) as z:
             watch = Watcher(z, keys)
-            sim_args = ["--duration", duration, "--session", session_id, "--zenoh-mode", "client",
-                        "--connect", endpoint]
-            sims.append(subprocess.Popen([*CDPR, "sim", scenario, *sim_args], stderr=subprocess.DEVNULL, text=True))
+            args = ["--duration", duration, "--session", session_id, "--zenoh-mode", "client", "--connect", endpoint]
+            procs.append(subprocess.Popen([*CDPR, service, scenario, *args], stderr=subprocess.DEVNULL, text=True))
             watch.wait(lambda: len(watch.states) > 300, 60, "300 steps")
-            sims[0].send_signal(signal.SIGKILL)
-            sims[0].wait(timeout=10)
-            sims.append(subprocess.Popen([*CDPR, "sim", restart, *sim_args], stderr=subprocess.PIPE, text=True))
+            procs[0].send_signal(signal.SIGKILL)
+            procs[0].wait(timeout=10)
+            procs.append(subprocess.Popen([*CDPR, service, restart, *args], stderr=subprocess.PIPE, text=True))
             out, err = up.communicate(timeout=300)
-            _, sim_err = sims[1].communicate(timeout=60)
+            _, replacement_err = procs[1].communicate(timeout=60)
     finally:
-        for p in (up, *sims):
+        for p in (up, *procs):
             if p.poll() is None:
                 p.kill()
-    return last_json_line(out), err + sim_err, watch
+    return last_json_line(out), err + replacement_err, watch
 
 
 @pytest.mark.parametrize("scenario", ["caroca_15kg", "caroca_15kg_winch", "caroca_15kg_sag", "caroca_15kg_ups"])
@@ -119,7 +118,7 @@ def test_a_restarted_sim_goes_on_from_the_last_snapshot_bit_for_bit(session_id: 
     and the states are those of an uninterrupted run, bit for bit (a state published again equals the first);
     the recording has every step once, and the same digest."""
     rrd = tmp_path / "restart.rrd"
-    s, err, watch = _restart_the_sim(session_id, scenario, scenario, "1.5", "--rrd", str(rrd))
+    s, err, watch = _restart(session_id, "sim", scenario, scenario, "1.5", "--rrd", str(rrd))
     assert s["exit_ok"] is True, err[-3000:]
     assert "joined a session under way: going on from step" in err
     lost, doubled = watch.check(1500)
@@ -138,7 +137,7 @@ def test_a_restarted_sim_goes_on_from_the_last_snapshot_bit_for_bit(session_id: 
 def test_a_sim_that_cannot_take_up_the_snapshot_ends_the_session(session_id: str) -> None:
     """A sim of another cable model cannot go on from the session's snapshot: it says why, starts from step 0,
     and the clock ends the session (its platform's state is lost)."""
-    s, err, _ = _restart_the_sim(session_id, "caroca_15kg", "caroca_15kg_ups", "3")
+    s, err, _ = _restart(session_id, "sim", "caroca_15kg", "caroca_15kg_ups", "3")
     assert s["exit_ok"] is False
     assert "cannot go on from the session's step" in err
     assert "it is of cable model ideal, this sim's is ups" in err
@@ -148,29 +147,7 @@ def test_a_sim_that_cannot_take_up_the_snapshot_ends_the_session(session_id: str
 def test_a_restarted_trajectory_changes_nothing(session_id: str) -> None:
     """The trajectory is stateless: killed mid-run and started again, it publishes the setpoints again from the
     pending step (the clock's repeated grant), and the states are those of an uninterrupted run."""
-    port = free_port()
-    endpoint = f"tcp/127.0.0.1:{port}"
-    up = subprocess.Popen([*CDPR, "up", "caroca_15kg", "--duration", "1.5", "--session", session_id, "--without",
-                           "trajectory", "--listen", endpoint, "--quiet"],
-                          stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
-    args = ["--duration", "1.5", "--session", session_id, "--zenoh-mode", "client", "--connect", endpoint]
-    first = second = None
-    try:
-        with zenoh.open(zenoh_config("client", connect=[endpoint])) as z:
-            watch = Watcher(z, Keys(session_id))
-            first = subprocess.Popen([*CDPR, "trajectory", "caroca_15kg", *args], stderr=subprocess.DEVNULL)
-            watch.wait(lambda: len(watch.states) > 300, 60, "300 steps")
-            first.send_signal(signal.SIGKILL)
-            first.wait(timeout=10)
-            watch.wait(lambda: watch.status is not None and watch.status.state == "paused", 30, "the pause")
-            second = subprocess.Popen([*CDPR, "trajectory", "caroca_15kg", *args], stderr=subprocess.DEVNULL)
-            out, err = up.communicate(timeout=300)
-            second.wait(timeout=60)
-    finally:
-        for p in (up, first, second):
-            if p is not None and p.poll() is None:
-                p.kill()
-    s = last_json_line(out)
+    s, err, watch = _restart(session_id, "trajectory", "caroca_15kg", "caroca_15kg", "1.5")
     assert s["exit_ok"] is True, err[-3000:]
     assert watch.check(1500) == ([], [])
     whole = subprocess.run([*CDPR, "run", "caroca_15kg", "--duration", "1.5", "--in-process", "--quiet"],

@@ -28,7 +28,8 @@ def mjcf(scenario: Scenario, integrator: str = "RK4") -> str:
     robot = scenario.robot
     if robot.mode != "spatial":
         raise ValueError(f"the MuJoCo peer models spatial robots (a free body); {robot.name} is {robot.mode}")
-    I = np.asarray(robot.inertia, dtype=float)
+    inertia = np.asarray(robot.inertia, dtype=float)  # about the centre of mass, platform frame
+    full_inertia = " ".join(repr(float(inertia[i, j])) for i, j in ((0, 0), (1, 1), (2, 2), (0, 1), (0, 2), (1, 2)))
     p = np.asarray(scenario.initial_position, dtype=float)
     qx, qy, qz, qw = matrix_to_quat(np.asarray(scenario.initial_rotation, dtype=float))
 
@@ -48,7 +49,7 @@ def mjcf(scenario: Scenario, integrator: str = "RK4") -> str:
     <body name="platform" pos="{vec(p)}" quat="{vec((qw, qx, qy, qz))}">
       <freejoint/>
       <inertial pos="0 0 0" mass="{float(robot.mass)!r}"
-                fullinertia="{vec((I[0, 0], I[1, 1], I[2, 2], I[0, 1], I[0, 2], I[1, 2]))}"/>
+                fullinertia="{full_inertia}"/>
 {platform_sites}
     </body>
   </worldbody>
