@@ -274,7 +274,7 @@ def test_requirements_of_each_role() -> None:
     pyproject = str(ROOT / "pyproject.toml")
     names = {role: {re.split(r"[<>=!~\[ ;]", r, maxsplit=1)[0] for r in requirements(pyproject, extras)}
              for role, extras in (("stack", ["stack"]), ("sim", ["sim"]), ("recorder", ["record", "plots"]))}
-    base = {"eclipse-zenoh", "msgpack", "numpy", "scipy", "qpsolvers", "osqp", "pyyaml", "pydantic", "click",
+    base = {"eclipse-zenoh", "msgpack", "msgspec", "numpy", "scipy", "qpsolvers", "osqp", "pyyaml", "pydantic", "click",
             "setproctitle"}
     assert names["stack"] == base
     assert names["sim"] == base | {"dartpy"}

@@ -2,9 +2,8 @@
 
 from __future__ import annotations
 
-from dataclasses import replace
-
 import numpy as np
+from msgspec.structs import replace
 
 from cdpr.config.scenario import load_scenario
 from cdpr.mechanics.control import feedback_linearisation

@@ -171,17 +171,3 @@ def test_the_clock_refuses_free_running_or_max_lateness_in_fast_mode() -> None:
             ClockNode.from_args(scenario, Keys("s"), parser.parse_args(argv))
     node = ClockNode.from_args(scenario, Keys("s"), parser.parse_args(["--mode", "realtime", "--sync", "free"]))
     assert node.core.free
-
-
-def test_a_due_tick_that_waits_for_the_sim_is_noted() -> None:
-    core = ClockCore(total_steps=1000, dt=0.001, realtime=True, lookahead=2)
-    core.paused = False
-    core.issue(0, 0.0)
-    core.on_state(1, 0.0)
-    for k in (1, 2, 3):
-        assert core.next_grant(0.001 * k) is not None
-        core.issue(k, 0.001 * k)
-    assert core.next_grant(0.0025) is None  # tick 4 (due at 0.003) waits for the wall clock, not the sim
-    assert not core.waited_for_loop
-    assert core.next_grant(0.010) is None  # due, but the sim has reported only state 1
-    assert core.waited_for_loop

@@ -19,7 +19,7 @@ SERVICES = ("sim", "controller", "trajectory", "clock", "recorder")
 ALLOWED = {
     "mechanics": {"numpy", "scipy", "qpsolvers"},  # qpsolvers: the QP tension distribution (eq. 8), pure math
     "config": {"numpy", "pydantic", "yaml"},
-    "protocol": {"numpy", "msgpack"},
+    "protocol": {"numpy", "msgpack", "msgspec"},  # msgspec: the per-step messages' C-speed coding
     "runtime": {"numpy", "zenoh"},
     "recording": {"numpy", "rerun", "rerun_cli", "pyarrow",  # all three come with rerun-sdk
                   "foxglove", "orjson"},  # MCAP files and the live Foxglove server (cdpr.recording.mcap, .live)

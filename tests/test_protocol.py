@@ -106,7 +106,9 @@ def test_round_trip(msg: object) -> None:
 
 
 def _states(n: int, first: int = 0) -> tuple[State, ...]:
-    return tuple(State(k, k / 1000, (1, 2, 3, 0, 0, 0, 1), (0.1 * k,) * 6, (4.0,) * 8, (10.0 + k,) * 8, k // 3)
+    # numbers as the sim makes them (floats: a State is encoded as built, an int stays an int on the wire)
+    pose = (1.0, 2.0, 3.0, 0.0, 0.0, 0.0, 1.0)
+    return tuple(State(k, k / 1000, pose, (0.1 * k,) * 6, (4.0,) * 8, (10.0 + k,) * 8, k // 3)
                  for k in range(first, first + n))
 
 

@@ -21,8 +21,15 @@ from cdpr.config.robot import RobotSpec, load_robot, robot_from_spec, shipped_ro
 from cdpr.mechanics.dynamics import forward_dynamics, gravity_wrench
 from cdpr.mechanics.kinematics import cable_length_rates, inverse_kinematics
 from cdpr.mechanics.robot import Robot
-from cdpr.mechanics.rotation import matrix_to_rotvec, quat_to_matrix, rotvec_to_matrix, rpy_to_matrix
-from cdpr_sim.core import PlatformSim, PlatformState, clamp_tensions, state_message
+from cdpr.mechanics.rotation import (
+    matrix_to_quat,
+    matrix_to_rotvec,
+    quat_to_matrix,
+    rotvec_quat,
+    rotvec_to_matrix,
+    rpy_to_matrix,
+)
+from cdpr_sim.core import PlatformBody, PlatformSim, PlatformState, clamp_tensions, state_message
 
 G = 9.81
 DT = 1e-3
@@ -440,3 +447,109 @@ def test_message_is_the_state_as_a_message(name: str) -> None:
         for sim in sims:
             sim.step(f)
     _assert_same(sims[0].state(), sims[1].state())
+
+
+# -- reading and writing DART through the joint's coordinates (module docstring) -------------------
+
+
+def _random_rotation(rng: np.random.Generator, robot: Robot) -> np.ndarray:
+    """Any rotation (angle up to π) for a spatial or point-mass robot, one about y for a planar one."""
+    if robot.mode == "planar":
+        return rotvec_to_matrix([0.0, rng.uniform(-np.pi, np.pi), 0.0])
+    axis = rng.standard_normal(3)
+    return rotvec_to_matrix(axis / np.linalg.norm(axis) * rng.uniform(0.0, np.pi))
+
+
+@pytest.mark.parametrize("angle", [0.0, 1e-9, 9.9e-5, 1.01e-4, 0.3, 2.0, np.pi - 1e-9, 3.5, 7.0, 13.0])
+def test_rotvec_quat_is_the_quaternion_of_the_rotation(angle: float) -> None:
+    """Any angle (a planar joint's is not wrapped), either side of the series' threshold: the unit quaternion
+    with qw ≥ 0 of ``rotvec_to_matrix``, as ``matrix_to_quat`` gives it."""
+    rng = np.random.default_rng(int(angle * 1e3))
+    for _ in range(20):
+        axis = rng.standard_normal(3)
+        r = axis / np.linalg.norm(axis) * angle
+        q = np.array(rotvec_quat(*r))
+        assert q[3] >= 0.0
+        assert abs(np.linalg.norm(q) - 1.0) < 1e-15
+        np.testing.assert_allclose(quat_to_matrix(q), rotvec_to_matrix(r), rtol=0, atol=2e-15)
+        np.testing.assert_allclose(q, matrix_to_quat(rotvec_to_matrix(r)), rtol=0, atol=2e-15)
+
+
+@pytest.mark.parametrize("name", list(TEST_ROBOTS))
+def test_the_state_read_from_the_joint_equals_dart_world_frame_getters(name: str) -> None:
+    """The pose and twist read from the joint's positions and velocities are what ``getTransform``,
+    ``getLinearVelocity`` and ``getAngularVelocity`` of the body return, to the last bit or so, at any
+    rotation."""
+    robot = TEST_ROBOTS[name]()
+    rng = np.random.default_rng(17)
+    p0, _, v0 = moving_state(robot, spinning=True)
+    sim = PlatformSim(robot, DT, p0, _random_rotation(rng, robot), v0)
+    body = sim._platform.body
+    for _ in range(100):
+        sim.step(rng.uniform(robot.tmin, robot.tmax, robot.m))
+        s, tf = sim.state(), body.getTransform()
+        np.testing.assert_allclose(s.position, tf.translation(), rtol=0, atol=1e-15)
+        np.testing.assert_allclose(s.rotation, tf.rotation(), rtol=0, atol=1e-15)
+        twist = np.concatenate((body.getLinearVelocity(), body.getAngularVelocity()))
+        np.testing.assert_allclose(s.twist, twist, rtol=0, atol=1e-15 * np.abs(twist).max())
+
+
+@pytest.mark.parametrize("name", ["caroca_full_inertia", "planar"])
+def test_the_joint_forces_are_the_wrench_about_the_com(name: str) -> None:
+    """A ``FreeJoint``'s generalized forces [M; F] (a planar joint's [F_z, F_x, M_y]) step the body as the
+    external force at the COM and torque, world frame, do (to rounding); ``World.step`` zeroes them afterwards."""
+    robot = TEST_ROBOTS[name]()
+    p0, R0, v0 = moving_state(robot, spinning=True)
+    external, joint = PlatformBody(robot, DT), PlatformBody(robot, DT)
+    rng = np.random.default_rng(23)
+    for body in (external, joint):
+        body.place(p0, R0, v0)
+    for _ in range(20):
+        force, moment = rng.normal(0.0, 100.0, 3), rng.normal(0.0, 10.0, 3)
+        if robot.mode == "planar":
+            force[1] = moment[0] = moment[2] = 0.0
+        external.body.setExtForce(force, np.zeros(3), False, True)
+        external.body.setExtTorque(moment, False)
+        joint.joint.setForces([force[2], force[0], moment[1]] if robot.mode == "planar" else [*moment, *force])
+        external.world.step()
+        joint.world.step()
+        np.testing.assert_array_equal(joint.joint.getForces(), np.zeros(joint.joint.getNumDofs()))
+        for get in ("getPositions", "getVelocities"):  # the same step, to the last bit or so
+            expected = getattr(external.joint, get)()
+            atol = 1e-15 * np.abs(expected).max()
+            np.testing.assert_allclose(getattr(joint.joint, get)(), expected, rtol=0, atol=atol)
+
+
+@pytest.mark.parametrize("name", list(ROBOTS))
+def test_a_step_applies_the_cables_wrench_as_kinematics_has_it(name: str) -> None:
+    """Stepped side by side with a body pulled by ``W (f + c J v)`` of :mod:`cdpr.mechanics.kinematics`
+    (applied as DART's external force at the COM and torque, read back with DART's world-frame getters), at
+    any rotation, the sim stays with it to rounding: the cables' Plücker coordinates, the moment shifted
+    to the COM, the twist referred to the origin and the joint forces are the same physics."""
+    robot = ROBOTS[name]()
+    rng = np.random.default_rng(sum(map(ord, name)))
+    p0, _, v0 = moving_state(robot, spinning=True)
+    R0 = _random_rotation(rng, robot)
+    sim = PlatformSim(robot, DT, p0, R0, v0)
+    ref = PlatformBody(robot, DT)
+    ref.place(p0, R0, v0)
+    for _ in range(50):
+        tf = ref.body.getTransform()
+        twist = np.concatenate((ref.body.getLinearVelocity(), ref.body.getAngularVelocity()))
+        kin = inverse_kinematics(robot, tf.translation(), tf.rotation())
+        f = rng.uniform(robot.tmin, robot.tmax, robot.m)
+        damping = robot.cable_damping * (kin.jacobian @ twist)
+        wrench = kin.wrench_matrix @ (f + damping)
+        ref.body.setExtForce(wrench[:3], np.zeros(3), False, True)
+        ref.body.setExtTorque(wrench[3:], False)
+        ref.world.step()
+        report = sim.step(f)
+        np.testing.assert_allclose(report.damping, damping, rtol=0, atol=1e-12 * (1.0 + np.abs(damping).max()))
+        s, tf = sim.state(), ref.body.getTransform()
+        np.testing.assert_allclose(s.position, tf.translation(), rtol=0, atol=1e-13)
+        np.testing.assert_allclose(s.rotation, tf.rotation(), rtol=0, atol=1e-13)
+        twist = np.concatenate((ref.body.getLinearVelocity(), ref.body.getAngularVelocity()))
+        np.testing.assert_allclose(s.twist, twist, rtol=0, atol=1e-12 * np.abs(twist).max())
+        kin = inverse_kinematics(robot, s.position, s.rotation)
+        np.testing.assert_allclose(s.cable_lengths, kin.lengths, rtol=1e-14)
+        np.testing.assert_allclose(s.cable_rates, kin.jacobian @ s.twist, rtol=0, atol=1e-12)

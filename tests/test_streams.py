@@ -6,7 +6,6 @@ producer in the sim — three files — and a whole session then carries it to t
 
 from __future__ import annotations
 
-import dataclasses
 import filecmp
 import json
 import os
@@ -15,6 +14,7 @@ import subprocess
 import sys
 from pathlib import Path
 
+import msgspec
 import numpy as np
 import pytest
 
@@ -26,10 +26,10 @@ SOURCES = ("shared", "services")
 
 
 def test_the_state_message_has_the_columns_in_their_order() -> None:
-    fields = dataclasses.fields(State)
+    fields = msgspec.structs.fields(State)
     assert [f.name for f in fields] == ["step", "t", *(c.name for c in STATE_COLUMNS)]
     for f, c in zip(fields[2:], STATE_COLUMNS, strict=True):
-        assert (f.default is dataclasses.MISSING) == (c.default is None), c.name  # optional on the wire = a default
+        assert (f.default is msgspec.NODEFAULT) == (c.default is None), c.name  # optional on the wire = a default
         if c.default is not None:
             assert f.default == c.default
 
@@ -37,7 +37,7 @@ def test_the_state_message_has_the_columns_in_their_order() -> None:
 def test_a_state_round_trips_through_the_columns() -> None:
     s = State(7, 0.007, (0.1, 0.2, 1.5, 0.0, 0.0, 0.0, 1.0), (0.5,) * 6, (1.25, 2.5), (100.0, 200.0), 3)
     assert State.decode(s.encode(), 2) == s
-    block = Telemetry((s, dataclasses.replace(s, step=8, t=0.008, clamped=4)))
+    block = Telemetry((s, msgspec.structs.replace(s, step=8, t=0.008, clamped=4)))
     assert Telemetry.decode(block.encode(), 2).states == block.states
 
 
@@ -50,7 +50,7 @@ LAST = "    watchdog: int = 0  # 1 if the watchdog policy acted over the step be
 ATTRIBUTE = LAST + '''
     energy: float = 0.0  # J'''
 PRODUCER = '''                     tuple(lengths.tolist()), tuple(self._tensions.tolist()), clamped,
-                     energy=0.5 * self.robot.mass * float(v @ v))'''
+                     energy=0.5 * self.robot.mass * sum(x * x for x in twist[3:]))'''
 
 
 def _edit(path: Path, old: str, new: str) -> None:

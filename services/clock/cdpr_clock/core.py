@@ -2,13 +2,18 @@
 
 Step k is *complete* when the sim has published its state k+1; the clock hears of it through the sim's
 telemetry blocks. Step k (k > 0; tick 0 starts the run) may be granted once the sim has reached step
-k − ``lookahead``. In ``fast`` mode one tick grants every step up to that limit (a window: one message
-for many steps); in ``realtime`` mode tick k grants step k alone, at its wall-clock deadline
-t₁ + (k − 1)·dt (t₁: the arrival of state 1, see the handshake below), and a tick issued more than dt
-after its deadline is counted late. A tick that reaches the limit asks the sim for a report once it is
-done (``flush``), so the clock never waits for a block that is not due.
-The sim never integrates step k before tick k. While paused, nothing is issued; on resume the deadlines
-restart from the resume time (no burst to catch up).
+k − ``lookahead``: one tick grants every step up to that limit (a window: one message for many steps). In
+``fast`` mode a tick that reaches the limit asks the sim for a report once it is done (``flush``), so the
+clock never waits for a block that is not due. The sim never integrates step k before a tick grants it.
+While paused, nothing is issued.
+
+Realtime (``realtime``): the sim keeps the wall clock, not the clock service. After the handshake the clock
+grants windows of at least :data:`FREE_AHEAD` seconds of steps ahead, marked ``paced`` (and ``free`` with
+``--sync free``); the sim integrates each step at its own deadline, ``dt`` apart from the first paced
+grant — in lock-step once its command has come too (the deadlines restart after a pause or a stall: no
+burst to catch up) — and reports how late each one started (:meth:`ClockCore.on_lateness`): the step is
+on time when it started within ``dt`` of its deadline, late beyond. No message per step besides the
+state and the command: realtime costs what fast mode costs.
 
 The first step is a handshake: tick 0 grants step 0 alone (with a report), and nothing more is granted
 until the sim's state 1 shows that the whole loop is connected: the sim heard the clock, the
@@ -16,13 +21,12 @@ controller heard the sim and the trajectory, the sim heard the controller. Zenoh
 publication only to the subscribers its session already knows of, and a peer that has just joined may
 learn of the others' subscribers a few milliseconds after the clock saw every liveliness token; until
 state 1 arrives the node repeats tick 0 at short intervals (:meth:`handshake_repeat_due`).
-In realtime mode the deadlines start from the arrival of state 1 (tick 1 is due then).
+In realtime mode the deadlines start with the first paced grant, sent as state 1 arrives; the run's
+real-time factor is measured from there.
 
-Free-running realtime (``free``, ``--sync free``): after the handshake the clock grants windows as in fast
-mode (at least :data:`FREE_AHEAD` seconds of steps ahead), marked ``free``; the sim paces each step to its
-own deadline and reports how late each one started (:meth:`ClockCore.on_lateness`), which replaces the
-ticks' lateness in the statistics. The command ages and the watchdog's steps of free-running and of a
-command latency come from the states (:meth:`ClockCore.on_ages`).
+Free-running realtime (``free``, ``--sync free``): the same windows, marked ``free`` too: the sim no longer
+waits for commands (the newest it holds acts). The command ages and the watchdog's steps of free-running and
+of a command latency come from the states (:meth:`ClockCore.on_ages`).
 """
 
 from __future__ import annotations
@@ -32,7 +36,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-FREE_AHEAD = 0.25  # s of steps granted ahead of the sim's last state in free-running realtime (at least)
+FREE_AHEAD = 0.25  # s of steps granted ahead of the sim's last state in realtime (at least)
 
 
 @dataclass
@@ -46,8 +50,6 @@ class ClockCore:
     reached: int = -1  # highest step whose state has been received
     paused: bool = True  # until every expected participant is there
     started_at: float | None = None  # wall time of tick 0
-    base: float = 0.0  # realtime: wall time at which tick `base_step` is due
-    base_step: int = 0
     last_progress: float = 0.0
     resends: int = 0
     late_ticks: int = 0
@@ -55,7 +57,7 @@ class ClockCore:
     _paused_since: float | None = field(default=None, repr=False)
     handshake_repeats: int = 0  # tick 0 repeated while waiting for state 1
     lateness: list[float] = field(default_factory=list)
-    _on_time: int = field(default=0, repr=False)  # ticks issued within dt of their deadline
+    _on_time: int = field(default=0, repr=False)  # steps started within dt of their deadline
     _latest: float = field(default=-math.inf, repr=False)  # the largest lateness
     _percentiles: dict[str, float] = field(default_factory=dict, repr=False)  # see stats()
     _percentiles_of: int = field(default=0, repr=False)  # how many ticks they were computed from
@@ -63,20 +65,17 @@ class ClockCore:
     watchdog_steps: int = 0  # steps on which the sim's watchdog policy acted
     window: list[tuple[float, bool]] = field(default_factory=list, repr=False)  # (time, late) of the last second
     peak: float = field(default=-math.inf, repr=False)  # the largest lateness since take_peak()
-    waited_for_loop: bool = False  # lock-step realtime: a due tick waited for the sim (reset by the caller)
-    free_started: float | None = None  # free-running: the arrival of state 1 (the wall clock's rate from there)
+    paced_from: float | None = None  # realtime: the arrival of state 1 (the wall clock's rate from there)
 
     def __post_init__(self) -> None:
         if self.free:
             self.realtime = True
+        if self.realtime:
             self.lookahead = max(self.lookahead, math.ceil(FREE_AHEAD / self.dt))
 
     @property
     def finished(self) -> bool:
         return self.reached >= self.total_steps
-
-    def deadline(self, k: int) -> float:
-        return self.base + (k - self.base_step) * self.dt
 
     def next_grant(self, now: float) -> tuple[int, int, bool] | None:
         """``(first, until, flush)`` of the tick to issue now, if any (call repeatedly until None)."""
@@ -84,27 +83,17 @@ class ClockCore:
         if self.paused or k >= self.total_steps:
             return None
         if k > 0 and self.reached < max(1, k - self.lookahead):
-            if self.realtime and not self.free and self.started_at is not None and now >= self.deadline(k):
-                self.waited_for_loop = True  # tick k is due, the sim is a window behind
             return None
         if k == 0:
             return 0, 0, True  # the handshake (module docstring)
-        if self.realtime and not self.free:
-            if self.started_at is not None and now < self.deadline(k):
-                return None
-            until = k
-        else:
-            until = max(k, min(self.total_steps - 1, self.reached + self.lookahead))
-        return k, until, until >= self.reached + self.lookahead and not self.free
+        until = max(k, min(self.total_steps - 1, self.reached + self.lookahead))
+        return k, until, until >= self.reached + self.lookahead and not self.realtime
 
     def issue(self, k: int, now: float, until: int | None = None) -> None:
         """Record the grant of steps ``k`` … ``until`` (default: ``k``) at ``now``."""
         if self.started_at is None:
-            self.started_at = self.base = now
-            self.base_step = k
+            self.started_at = now
             self.last_progress = now
-        if self.realtime and not self.free:
-            self._record(now - self.deadline(k), now)
         self.issued = k if until is None else until
 
     def _record(self, late: float, now: float) -> None:
@@ -123,18 +112,14 @@ class ClockCore:
         return peak
 
     def behind(self, now: float) -> float:
-        """How far the loop is behind the wall clock now (s): lock-step, how overdue the next tick is (the
-        clock waiting for the sim); free-running, how long the sim has not been heard of, beyond a
-        telemetry block's period."""
-        if self.started_at is None or self.paused or self.finished:
+        """How far the loop is behind the wall clock now (s), as far as the clock can tell between two reports
+        of the sim's lateness: how long the sim has not been heard of, beyond a telemetry block's period."""
+        if self.started_at is None or self.paused or self.finished or not self.realtime:
             return 0.0
-        if self.free:
-            return now - self.last_progress - 0.25 if self.reached >= 1 else 0.0
-        k = self.issued + 1
-        return now - self.deadline(k) if k < self.total_steps and self.reached >= 1 else 0.0
+        return now - self.last_progress - 0.25 if self.reached >= 1 else 0.0
 
     def on_lateness(self, lateness: list[float] | tuple[float, ...], now: float) -> None:
-        """Free-running: how late the sim started each of a block's steps (s)."""
+        """Realtime: how late the sim started each of a block's steps (s)."""
         for late in lateness:
             self._record(late, now)
 
@@ -146,8 +131,8 @@ class ClockCore:
         self.watchdog_steps += watchdog
 
     def late_share(self, now: float, span: float = 1.0) -> tuple[float, int]:
-        """The share of the ticks (steps, free-running) of the last ``span`` seconds that were late, and
-        how many there were."""
+        """The share of the steps reported in the last ``span`` seconds that were late, and how many there
+        were."""
         window = self.window
         cut = 0
         while cut < len(window) and window[cut][0] < now - span:
@@ -161,10 +146,7 @@ class ClockCore:
         if k <= self.reached:
             return False
         if self.reached < 1 <= k and self.realtime:
-            if self.free:
-                self.free_started = now
-            else:
-                self.base, self.base_step = now, 1  # the handshake is over: tick 1 is due now
+            self.paced_from = now  # the handshake is over: the paced grant goes out now
         self.reached = k
         self.last_progress = now
         return True
@@ -181,16 +163,6 @@ class ClockCore:
             return None
         return self.last_progress + min(most, first * 2.0**self.handshake_repeats)
 
-    def wait_time(self, now: float) -> float | None:
-        """Seconds until the next realtime deadline, if a tick is only waiting for the wall clock."""
-        k = self.issued + 1
-        if (not self.realtime or self.free or self.paused or k >= self.total_steps
-                or (k > 0 and self.reached < max(1, k - self.lookahead))):
-            return None
-        if self.started_at is None:
-            return 0.0
-        return max(0.0, self.deadline(k) - now)
-
     def pause(self, now: float) -> None:
         if not self.paused:
             self.paused = True
@@ -205,8 +177,6 @@ class ClockCore:
             self.paused_time += now - self._paused_since
             self._paused_since = None
         self.last_progress = now
-        if self.started_at is not None:
-            self.base, self.base_step = now, self.issued + 1
         return self.pending()
 
     def pending(self) -> tuple[int, int] | None:
@@ -223,16 +193,16 @@ class ClockCore:
         if self._paused_since is not None:
             wall -= now - self._paused_since
         steps = max(self.reached, 0)
-        free_wall, free_steps = wall, steps  # free-running: from state 1 (the handshake's round trips left out)
-        if self.free_started is not None and self.started_at is not None:
-            free_wall -= self.free_started - self.started_at
-            free_steps -= 1
+        paced_wall, paced_steps = wall, steps  # realtime: from state 1 (the handshake's round trips left out)
+        if self.paced_from is not None and self.started_at is not None:
+            paced_wall -= self.paced_from - self.started_at
+            paced_steps -= 1
         out: dict[str, float | int] = {
             "steps": steps,
             "sim_time": steps * self.dt,
             "wall_time": wall,
             "rate": steps / wall if wall > 0 else 0.0,
-            "rtf": (free_steps * self.dt / free_wall if free_wall > 0 else 0.0) if self.free else
+            "rtf": (paced_steps * self.dt / paced_wall if paced_wall > 0 else 0.0) if self.realtime else
                    (steps * self.dt / wall if wall > 0 else 0.0),
             "late_ticks": self.late_ticks,
             "resends": self.resends,

@@ -225,12 +225,8 @@ class ClockNode(Node):
 
     # -- ticking ----------------------------------------------------------------------------------
     def timeout(self, now: float) -> float:
-        wait = self.core.wait_time(now)
         repeat_at = self.core.handshake_repeat_due(HANDSHAKE_FIRST_REPEAT, self.resend_after)
-        if repeat_at is not None:
-            left = max(0.0, repeat_at - now)
-            wait = left if wait is None else min(wait, left)
-        return self.idle_period if wait is None else min(wait, self.idle_period)
+        return self.idle_period if repeat_at is None else min(max(0.0, repeat_at - now), self.idle_period)
 
     def idle(self, now: float) -> None:
         if self.state == "waiting":
@@ -281,8 +277,9 @@ class ClockNode(Node):
             self.core.resends += 1
         else:
             self.core.issue(first, now, until)
-        free = self.core.free and until >= 1
-        self._tick.put(Tick(first, first * self.core.dt, until, resend, flush or resend, free).encode())
+        paced = self.core.realtime and until >= 1  # after the handshake
+        self._tick.put(Tick(first, first * self.core.dt, until, resend, flush or resend, paced and self.core.free,
+                            paced).encode())
 
     # -- status -----------------------------------------------------------------------------------
     def set_state(self, state: ClockState, reason: str, now: float) -> None:
@@ -298,9 +295,6 @@ class ClockNode(Node):
             return
         share, n = self.core.late_share(now)
         lags, self.lags = self.lags, []
-        # a due tick that waited for the sim (a window behind) since the last look: the loop is slow; else the
-        # clock itself was late (the machine)
-        loop_bound, self.core.waited_for_loop = self.core.waited_for_loop, False
         behind = max(self.core.take_peak(), self.core.behind(now))
         if self.max_lateness > 0 and behind > self.max_lateness:
             self.abort(f"step {self.core.reached} is {behind:.3f} s behind the wall clock "
@@ -311,15 +305,10 @@ class ClockNode(Node):
         self.diagnosed = True
         dt_ms = self.core.dt * 1e3
         into = now - self.core.started_at - self.core.paused_time
-        what = (f"{share:.0%} of the {'steps' if self.core.free else 'ticks'} of the last second were late "
-                f"({into:.2f} s in, step {self.core.reached})")
+        what = f"{share:.0%} of the steps of the last second were late ({into:.2f} s in, step {self.core.reached})"
         if self.core.free:
             log(self.name, f"free-running is falling behind the wall clock: {what}; the sim's steps take longer "
                 f"than dt = {dt_ms:g} ms (a loaded machine?)")
-            return
-        if not loop_bound:
-            log(self.name, f"lock-step realtime is falling behind: {what}; the loop keeps up, the clock's own "
-                "ticks were late (a loaded machine?): try --rt-priority, or --mode fast")
             return
         if lags:
             lag = statistics.median(lags) * 1e3
@@ -329,8 +318,8 @@ class ClockNode(Node):
                     f"dt = {dt_ms:g} ms: use --sync free (commands then act a few steps late) or --mode fast")
                 return
             log(self.name, f"lock-step realtime is falling behind: {what}; the controller answers in {lag:.2f} ms "
-                f"(median) of dt = {dt_ms:g} ms, so the sim's step is slow (a loaded machine?): use --mode fast "
-                "or a longer dt")
+                f"(median) of dt = {dt_ms:g} ms, so the sim's steps are slow or start late (a loaded machine?): "
+                "try --rt-priority, --mode fast or a longer dt")
             return
         log(self.name, f"lock-step realtime is falling behind: {what} (dt = {dt_ms:g} ms): use --sync free or "
             "--mode fast")

@@ -17,6 +17,8 @@ Model (seed paper §2.3 and §3.1)
   ``a_i``. The cable's length is not a constraint: a tension-controlled winch pays cable in or out as
   needed, so only the force's line of action matters. The wrench on the platform is ``W f`` exactly as
   in :mod:`cdpr.mechanics.kinematics` (force ``Σ f_i d_i`` and moment ``Σ (R b_i) × f_i d_i`` about the COM).
+  It is computed from the cables' Plücker coordinates and handed to DART as the joint's generalized
+  forces (both below).
 * Cable damping (``robot.cable_damping`` = c, N·s/m): the paper's cable is an actuated prismatic joint
   with viscous damping, whose force opposes the cable's length rate. On the platform this is the extra,
   bilateral, force ``c·l̇_i`` along ``d_i``: a lengthening cable (l̇_i > 0) pulls the platform back, a
@@ -33,10 +35,33 @@ Model (seed paper §2.3 and §3.1)
   ``g t²/2``. DART's body deactivation ("sleeping", on by default in dartpy 6.20's World: thresholds
   1 cm/s and 0.05 rad/s held for 0.5 s) is switched off, so a slow platform is never frozen.
 
-The state is read back from DART in the world frame (``getTransform``, ``getLinearVelocity``,
-``getAngularVelocity`` of the body, whose origin is the COM). A free body's twist is written through
-the ``FreeJoint``'s world-frame setters, a planar body's as ``[ż, ẋ, θ̇_y]`` (the ZX joint's coordinates
-are in the world frame), so nothing depends on the frame of DART's generalized velocities.
+Reading and writing DART
+------------------------
+The body is read once per step, as its joint's generalized coordinates, which in dartpy 6.20 are all in
+the world frame (tested): a ``FreeJoint``'s positions are ``[r; t]`` (r the rotation vector of R, t the
+COM) and its velocities ``[ω; ṫ]`` (the twist at the COM, angular first: what ``getAngularVelocity`` and
+``getLinearVelocity`` return, to the last bit); a ZX ``PlanarJoint``'s are ``[z, x, θ_y]`` and
+``[ż, ẋ, θ̇_y]``. R is the matrix of r's quaternion (DART's own R to rounding, tested). A free body's pose
+and twist are written through the ``FreeJoint``'s world-frame setters, a planar body's as its coordinates.
+Dually, the joint's generalized forces are the wrench about the COM, world frame: ``[M; F]`` for a
+``FreeJoint`` (the same step, to the last bit or so, as ``setExtForce`` at the COM plus ``setExtTorque``, tested),
+``[F_z, F_x, M_y]`` for the planar joint; ``World.step`` zeroes them after each step.
+
+The cables in Plücker coordinates
+---------------------------------
+Cable i's line of action, through ``a_i`` along ``d_i``, has the Plücker coordinates ``G_i = [a_i × d_i; d_i]``
+(moment about the world origin first, DART's order). Unnormalised, ``[a_i × l_i; l_i]`` is *linear* in R
+and t: ``l_i = a_i − t − R b_i`` and ``a_i × l_i = −a_i × t − a_i × (R b_i)``; R's entries are linear in the
+products of the quaternion's components (``1 − 2(q_y² + q_z²)``, ...). So, once per step, the m of them are
+one product of a constant (6m × 13) matrix (:func:`cable_line_map`) with those 9 products, t and 1, and
+the lengths ``‖l_i‖`` follow: the numpy calls of a step do not grow with m, and no cross product is
+taken. With the twist referred to the world origin, ``[ω; ṫ + t × ω]`` (the velocity of the body point
+passing through the origin), the length rates are ``l̇ = −G [ω; ṫ + t × ω]`` (= ``J v``: ``−d_i`` dotted
+with the attach point's velocity) and the cables' wrench ``Gᵀ(f + c l̇) = [M_O; F]`` about the origin is
+``[M_O − t × F; F]`` about the COM: ``W (f + c l̇)``, to rounding (the moment about the COM is a
+difference of moments about the origin, ~|a_i|/|b_i| times larger). A point-mass robot's moment is 0,
+exactly, so it never turns.
+
 The same inputs give bit-identical outputs; nothing is random and no module state is mutable.
 """
 
@@ -51,13 +76,14 @@ import numpy as np
 from numpy.typing import ArrayLike
 
 from cdpr.config.scenario import Scenario
-from cdpr.mechanics.kinematics import cable_geometry, cable_vectors
 from cdpr.mechanics.robot import GRAVITY, Robot
-from cdpr.mechanics.rotation import Array, matrix_to_quat, readonly
+from cdpr.mechanics.rotation import Array, matrix_to_quat, quat_matrix, readonly, rotvec_quat, skew
 from cdpr.protocol import State
 
 _ORTHONORMAL_TOL = 1e-6  # a rotation given to the sim must satisfy ‖RᵀR − I‖∞ ≤ this, and det R > 0
 _PLANAR_TOL = 1e-9  # out-of-plane pose/twist components a planar robot tolerates (then set to 0)
+_FORCE_HALF = np.array([0.0, 0.0, 0.0, 1.0, 1.0, 1.0])  # np.square(rows [a_i × l_i; l_i]) @ this: ‖l_i‖²
+_FORCE_HALF.flags.writeable = False
 
 
 def clamp_tensions(commanded: np.ndarray, tmax: float) -> tuple[np.ndarray, int, int]:
@@ -153,17 +179,11 @@ class SimModel(Protocol):
         ...
 
 
-@dataclass(frozen=True)
-class _Snapshot:
-    """Everything one step needs about the current state, read from DART once per step. Read-only."""
-
-    position: Array  # (3,)
-    rotation: Array  # (3, 3)
-    twist: Array  # (6,) [v; ω]
-    lengths: Array  # (m,)
-    directions: Array  # (m, 3) d_i, rows of W's force block
-    moments: Array  # (m, 3) (R b_i) × d_i, rows of W's moment block
-    rates: Array  # (m,) l̇ = J v = −(d_i · v + ((R b_i) × d_i) · ω)
+# One read of the body and its cables (:meth:`PlatformSim._read`): ``(pose, twist, lines, lengths)``. The pose as
+# a message has it (x, y, z, qx, qy, qz, qw: the COM t and the unit quaternion of R) and the twist [ω; ṫ] at the
+# COM (world frame, angular first as DART has it), Python floats; the cables' unnormalised Plücker coordinates
+# [a_i × l_i; l_i] (m, 6) and their lengths ‖l_i‖ (m,).
+_Reading = tuple[tuple[float, ...], list[float], Array, Array]
 
 
 class PlatformBody:
@@ -244,14 +264,15 @@ class PlatformSim:
         self.robot = robot
         self.dt = check_dt(dt)
         self.step_count = 0
-        self._a = np.array(robot.frame_points, dtype=float)
-        self._b = np.array(robot.platform_points, dtype=float)
-        self._zero3 = np.zeros(3)
+        self._line_map = cable_line_map(robot.frame_points, robot.platform_points)
+        self._minus_c = -float(robot.cable_damping)
         self._platform = PlatformBody(robot, self.dt)
-        self._world, self._joint, self._body = self._platform.world, self._platform.joint, self._platform.body
+        self._world, self._joint = self._platform.world, self._platform.joint
+        self._planar = self._platform.planar
+        self._point_mass = robot.mode == "point_mass"
+        self._shape = (robot.m,)  # of a command
         self._tensions = readonly(np.zeros(robot.m))
-        self._snap: _Snapshot | None = None
-        self._reads: tuple[Array, Array, Array, Array] | None = None
+        self._now: _Reading | None = None  # the current step's reading, from its first use to the next step
         self.reset(position, rotation, twist)
 
     @classmethod
@@ -273,36 +294,40 @@ class PlatformSim:
         """Back to step 0 at the given pose and twist (defaults: home pose, at rest)."""
         self._platform.place(*start_pose(self.robot, position, rotation, twist))
         self._world.reset()
-        self._snap = self._reads = None
+        self._now = None
         self.step_count = 0
         self._tensions = readonly(np.zeros(self.robot.m))
 
-    def _read_body(self) -> tuple[Array, Array, Array, Array]:
-        """``(position, R, v, ω)`` of the body, read from DART at most once per step."""
-        if self._reads is None:
-            tf, body = self._body.getTransform(), self._body
-            self._reads = (tf.translation(), tf.rotation(), body.getLinearVelocity(), body.getAngularVelocity())
-        return self._reads
-
-    def _snapshot(self) -> _Snapshot:
-        """The current state's geometry, computed at most once per step (until the next step or reset)."""
-        if self._snap is not None:
-            return self._snap
-        p, R, v, w = self._read_body()
-        _, lengths, d, moments, rates = cable_geometry(self._a, self._b, p, R, v, w)
-        snap = _Snapshot(*(readonly(x) for x in (p, R, np.concatenate((v, w)), lengths, d, moments, rates)))
-        self._snap = snap
-        return snap
+    def _read(self) -> _Reading:
+        """The body now and its cables (:data:`_Reading`), from the joint's coordinates (module docstring),
+        at most once per step: what :meth:`message` needs, and the rest of the step's geometry."""
+        if self._now is None:
+            positions, velocities = self._joint.getPositions().tolist(), self._joint.getVelocities().tolist()
+            if self._planar:  # [z, x, θ_y] and [ż, ẋ, θ̇_y]
+                (z, x, ry), (dz, dx, wy) = positions, velocities
+                rx = rz = y = 0.0
+                twist = [0.0, wy, 0.0, dx, 0.0, dz]
+            else:  # [r; t] and [ω; ṫ]
+                rx, ry, rz, x, y, z = positions
+                twist = velocities
+            qx, qy, qz, qw = rotvec_quat(rx, ry, rz)
+            features = (qx * qx, qy * qy, qz * qz, qx * qy, qx * qz, qy * qz, qx * qw, qy * qw, qz * qw, x, y, z, 1.0)
+            unnormalised = (self._line_map @ np.array(features)).reshape(-1, 6)  # rows [a_i × l_i; l_i]
+            lengths = np.sqrt(np.square(unnormalised) @ _FORCE_HALF)
+            self._now = ((x, y, z, qx, qy, qz, qw), twist, unnormalised, lengths)
+        return self._now
 
     def state(self) -> PlatformState:
         """The current state. Its arrays are read-only and never change afterwards: safe to keep."""
-        s = self._snapshot()
-        return PlatformState.of(self.step_count, self.t, s.position, s.rotation, s.twist, s.lengths, s.rates,
-                                self._tensions)
+        pose, twist, unnormalised, lengths = self._read()
+        rates = (unnormalised @ origin_twist(pose, twist, -1.0)) / lengths  # l̇ = −G [ω; ṫ + t × ω] = J v
+        return PlatformState(self.step_count, self.t, readonly(np.array(pose[:3])), readonly(np.array(pose[3:])),
+                             readonly(quat_matrix(*pose[3:])), readonly(np.array(twist[3:] + twist[:3])),
+                             readonly(lengths), readonly(rates), self._tensions)
 
     def encoder_lengths(self) -> Array:
         """(m,) the cable lengths (an ideal cable's encoder measures them exactly)."""
-        return self._snapshot().lengths  # (not state(): no quaternion to derive)
+        return readonly(self._read()[3])
 
     def load_cell_tensions(self) -> Array:
         """(m,) the tensions applied over the last step."""
@@ -310,12 +335,11 @@ class PlatformSim:
 
     def message(self, clamped: int) -> State:
         """The current state as a ``sim/state`` message: ``state_message(self.state(), clamped)``, the same
-        numbers, from the least work (pose, twist and cable lengths). The rest of the state's geometry
-        (the cables' directions, moments and rates, which the next step needs) waits for :meth:`state`
-        or :meth:`step`: the sim service sends the message first."""
-        p, R, v, w = self._read_body()
-        lengths = cable_vectors(self._a, self._b, p, R)[2]
-        return State(self.step_count, self.t, (*p.tolist(), *matrix_to_quat(R).tolist()), (*v.tolist(), *w.tolist()),
+        numbers, from the least work (pose, twist and cable lengths). The rest of the cables' geometry,
+        which the next step needs, waits for :meth:`step` (or :meth:`state`): the sim service sends the
+        message first."""
+        pose, twist, _, lengths = self._read()
+        return State(self.step_count, self.step_count * self.dt, pose, (*twist[3:], *twist[:3]),
                      tuple(lengths.tolist()), tuple(self._tensions.tolist()), clamped)
 
     def snapshot(self) -> dict[str, Any]:
@@ -323,32 +347,80 @@ class PlatformSim:
 
     def restore(self, snapshot: dict[str, Any]) -> None:
         self.step_count, self._tensions = restore_world(self._world, snapshot, self.robot.m)
-        self._snap = self._reads = None
+        self._now = None
 
     # -- dynamics ---------------------------------------------------------------------------------
     def step(self, tensions: np.ndarray) -> StepReport:
         """Clamp ``tensions`` (m,) to [0, tmax], apply them and the cable damping, integrate one ``dt``.
 
-        The cables' forces ``(f_i + c·l̇_i) d_i`` at the points ``t + R b_i`` are applied as their sum at
-        the COM plus their moment about it, both in world coordinates: the same wrench as one
-        ``addExtForce(force_i, b_i, isForceLocal=False, isOffsetLocal=True)`` per cable, in two calls.
+        The cables' forces ``(f_i + c·l̇_i) d_i`` at the points ``t + R b_i`` are applied as their sum and
+        their moment about the COM, world frame (``W (f + c l̇)``, from the cables' Plücker coordinates), as
+        the joint's generalized forces: the wrench of one ``addExtForce(force_i, b_i, isForceLocal=False,
+        isOffsetLocal=True)`` per cable, in one call.
         """
         commanded = np.asarray(tensions, dtype=float)
-        if commanded.shape != (self.robot.m,):
+        if commanded.shape != self._shape:
             raise ValueError(f"expected {self.robot.m} tensions, got shape {commanded.shape}")
         applied, low, high = clamp_tensions(commanded, self.robot.tmax)
-        s = self._snapshot()
-        damping = self.robot.cable_damping * s.rates
-        pull = applied + damping
-        body = self._body
-        # Net force at the COM and net moment about it, world coordinates: W (f + c l̇).
-        body.setExtForce(pull @ s.directions, self._zero3, False, True)
-        body.setExtTorque(pull @ s.moments, False)
-        self._world.step()  # semi-implicit Euler; clears the external force and torque afterwards
-        self._snap = self._reads = None
+        pose, twist, unnormalised, lengths = self._read()
+        lines = unnormalised / lengths[:, None]  # G: rows [a_i × d_i; d_i]
+        damping = lines @ origin_twist(pose, twist, self._minus_c)  # c·l̇ = −c·G [ω; ṫ + t × ω]
+        mx, my, mz, fx, fy, fz = ((applied + damping) @ lines).tolist()  # [M_O; F], about the world origin
+        x, y, z = pose[:3]
+        mx, my, mz = mx - (y * fz - z * fy), my - (z * fx - x * fz), mz - (x * fy - y * fx)  # about the COM
+        if self._point_mass:  # cables at the COM: no moment, exactly (not the rounding error of M_O − t × F)
+            mx = my = mz = 0.0
+        self._joint.setForces((fz, fx, my) if self._planar else (mx, my, mz, fx, fy, fz))
+        self._world.step()  # semi-implicit Euler; zeroes the joint's forces afterwards
+        self._now = None
         self.step_count += 1
         self._tensions = readonly(applied)
         return StepReport(self._tensions, low, high, readonly(damping))
+
+
+def origin_twist(pose: tuple[float, ...], twist: list[float], scale: float) -> Array:
+    """``scale`` times the twist ``[ω; ṫ]`` at the COM ``t = pose[:3]`` referred to the world origin:
+    ``[ω; ṫ + t × ω]``, the velocity of the body point passing through the origin (Python floats in)."""
+    x, y, z = pose[:3]
+    wx, wy, wz, vx, vy, vz = twist
+    return np.array((scale * wx, scale * wy, scale * wz, scale * (vx + (y * wz - z * wy)),
+                     scale * (vy + (z * wx - x * wz)), scale * (vz + (x * wy - y * wx))))
+
+
+def cable_line_map(frame_points: ArrayLike, platform_points: ArrayLike) -> Array:
+    """The constant (6m, 13) matrix K of the cables' unnormalised Plücker coordinates (module docstring).
+
+    For the platform at ``(t, R)``, R the rotation of the unit quaternion q,
+    ``(K @ [q_x², q_y², q_z², q_x q_y, q_x q_z, q_y q_z, q_x q_w, q_y q_w, q_z q_w, t_x, t_y, t_z, 1]).reshape(m, 6)``
+    has the rows ``[a_i × l_i; l_i]``, ``l_i = a_i − t − R b_i``. Both halves are linear in R and t
+    (``a_i × l_i = −a_i × t − a_i × (R b_i)``, as ``a_i × a_i = 0``), and R's entries are linear in these
+    products of q's components and 1 (:func:`~cdpr.mechanics.rotation.quat_matrix`).
+    """
+    a, b = np.array(frame_points, dtype=float), np.array(platform_points, dtype=float)
+    # [R row by row; t; 1] from the 13 features: R = [[1 − 2(yy + zz), 2(xy − zw), 2(xz + yw)], …]
+    xx, yy, zz, xy, xz, yz, xw, yw, zw, one = 0, 1, 2, 3, 4, 5, 6, 7, 8, 12
+    terms = (((one, 1), (yy, -2), (zz, -2)), ((xy, 2), (zw, -2)), ((xz, 2), (yw, 2)),
+             ((xy, 2), (zw, 2)), ((one, 1), (xx, -2), (zz, -2)), ((yz, 2), (xw, -2)),
+             ((xz, 2), (yw, -2)), ((yz, 2), (xw, 2)), ((one, 1), (xx, -2), (yy, -2)))
+    pose = np.zeros((13, 13))
+    for entry, combination in enumerate(terms):
+        for feature, coefficient in combination:
+            pose[entry, feature] = coefficient
+    pose[9:, 9:] = np.eye(4)  # t and 1
+    # [a_i × l_i; l_i] from [R row by row; t; 1]
+    out = np.zeros((len(a), 6, 13))
+    for i, (a_i, b_i) in enumerate(zip(a, b, strict=True)):
+        chord = np.zeros((3, 13))  # l_i = −(R b_i) − t + a_i, with (R b_i)_j = Σ_k R_jk b_ik
+        for j in range(3):
+            chord[j, 3 * j:3 * j + 3] = -b_i
+        chord[:, 9:12] = -np.eye(3)
+        chord[:, 12] = a_i
+        out[i, :3] = skew(a_i) @ chord  # a_i × l_i
+        out[i, :3, 12] = 0.0  # a_i × a_i, exactly (a fused multiply-add could leave a rounding error)
+        out[i, 3:] = chord
+    out = out.reshape(6 * len(a), 13) @ pose
+    out.flags.writeable = False
+    return out
 
 
 def planar_coordinates(p: Array, R: Array, v: Array) -> tuple[Array, Array]:

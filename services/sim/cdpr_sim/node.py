@@ -9,35 +9,37 @@ report (``flush``, ``resend``); a slow loop sends one at least every :data:`TELE
 clock takes a long silence for a stall). Bad commands are dropped with a one-line log; out-of-range tensions are
 clamped to [0, tmax] and counted.
 
-Two variations (docs/realtime.md), both through :mod:`cdpr_sim.hold`:
+Realtime (ticks marked ``paced``; docs/realtime.md): the sim keeps the wall clock. Step k is due at its
+deadline, ``dt`` apart from the first paced grant (from the grant that ends a wait for one: a pause; and,
+in lock-step, from a ``resend`` tick: after a stall the deadlines restart, no burst to catch up). In
+lock-step a command that comes before its step's deadline waits for it (on the thread that received it:
+the sim expects nothing else before that step), one that comes after it acts at once; each step's lateness
+(the start of its integration after its deadline) goes into the telemetry.
+
+Two variations, both through :mod:`cdpr_sim.hold`:
 
 * a scenario ``sim.command_latency`` (lock-step): step k still waits for command k, then applies the newest
   command whose delayed step has come (free-running, the modelled latency adds to the link's);
-* free-running realtime (ticks marked ``free``): the sim no longer waits for commands. It integrates each
-  granted step at its own deadline, ``dt`` apart from the first free grant (or from the grant that ends a
-  wait for one: a pause), with the newest command it holds, or its watchdog policy; each step's lateness goes
-  into the telemetry. The main thread sleeps until the next deadline (:meth:`SimNode.timeout`).
+* free-running realtime (ticks marked ``free`` too): the sim no longer waits for commands. It integrates each
+  granted step at its deadline with the newest command it holds, or its watchdog policy.
 """
 
 from __future__ import annotations
 
-import dataclasses
 import time
 from typing import Any
 
 import numpy as np
 import zenoh
+from msgspec.structs import replace
 
 from cdpr.config.scenario import Scenario
-from cdpr.protocol import Command, Keys, Resume, Sensors, State, Telemetry, Tick
-from cdpr.runtime.service import Node
+from cdpr.protocol import TELEMETRY_EVERY, TELEMETRY_PERIOD, Command, Keys, Resume, Sensors, State, Telemetry, Tick
+from cdpr.runtime.service import Node, sleep_precisely
 from cdpr.runtime.transport import Event, Inbox, log
 from cdpr_sim.hold import Applied, CommandHold, LatencyModel, StaticPolicy
 from cdpr_sim.models import make_sim
 from cdpr_sim.sensors import SensorConfig, SensorSuite
-
-TELEMETRY_EVERY = 50  # steps per sim/telemetry block...
-TELEMETRY_PERIOD = 0.2  # ...or seconds, whichever comes first: the clock hears of progress even on a slow loop
 
 
 class SimNode(Node):
@@ -83,9 +85,11 @@ class SimNode(Node):
             self.static.warm_up()  # the first steps, before a command acts
         self.applied: Applied[Command] | None = None  # what acted on the last step (free, latency)
         self.watchdog_active = False
+        self.paced = False  # realtime: set by the first paced (or free) tick
         self.free = False  # free-running realtime: set by the first free tick
-        self.base: float | None = None  # free: the wall time (monotonic) at which step base_step is due
+        self.base: float | None = None  # paced: the wall time (monotonic) at which step base_step is due
         self.base_step = 0
+        self.due: tuple[Command, float] | None = None  # paced lock-step: command, lag: waiting for the deadline
 
     def _new_hold(self) -> CommandHold[Command]:
         return CommandHold(self.watchdog.steps(self.scenario.dt))
@@ -118,7 +122,7 @@ class SimNode(Node):
         else:
             msg = self.sim.message(self.clamped)
             if (applied := self.applied) is not None and (applied.age or applied.watchdog):
-                msg = dataclasses.replace(msg, command_age=applied.age, watchdog=int(applied.watchdog))
+                msg = replace(msg, command_age=applied.age, watchdog=int(applied.watchdog))
             self._state_msg = msg
         self._pub.put(msg.encode())
         self.published_at = time.monotonic()
@@ -184,6 +188,8 @@ class SimNode(Node):
             self.publish_state()
             self.flush()
             return
+        if (tick.paced or tick.free) and not self.paced:
+            self.paced = True
         if tick.free and not self.free:
             self.free = True
             if self.hold is None:
@@ -192,8 +198,10 @@ class SimNode(Node):
                 self.static.warm_up()  # before the deadlines start
             if self.last_command is not None:  # the handshake's step, taken in lock-step
                 self.hold.offer(self.last_command, self.last_command.step, self.step - 1)
-        if self.free and tick.until > self.allowed and (self.base is None or self.step > self.allowed):
-            # the first free grant, or one that ends a wait for a grant (a pause): the deadlines start now
+        if self.paced and ((tick.until > self.allowed and (self.base is None or self.step > self.allowed))
+                           or (tick.resend and not self.free and tick.until >= self.step)):
+            # the first paced grant, one that ends a wait for a grant (a pause), or (lock-step) a grant repeated
+            # after a stall or a pause: the deadlines start now
             self.base, self.base_step = time.monotonic(), self.step
         if tick.until > self.allowed:
             self.allowed = tick.until
@@ -209,22 +217,46 @@ class SimNode(Node):
             cmd, self.pending = self.pending, None
             self.on_command(cmd)
 
-    # -- free-running realtime --------------------------------------------------------------------
+    # -- realtime ---------------------------------------------------------------------------------
     def deadline(self, k: int) -> float:
         assert self.base is not None
         return self.base + (k - self.base_step) * self.scenario.dt
 
     def timeout(self, now: float) -> float:
-        if not self.free or self.base is None or self.step > self.allowed or self.step >= self.total_steps:
+        if (not self.paced or self.base is None or self.step > self.allowed or self.step >= self.total_steps
+                or (not self.free and self.due is None)):
             return self.idle_period
         return max(0.0, self.deadline(self.step) - now)
 
     def idle(self, now: float) -> None:
-        if not self.free or self.base is None:
+        if not self.paced or self.base is None:
             return
-        while self.step <= self.allowed and self.step < self.total_steps and now >= self.deadline(self.step):
+        if self.due is not None:  # lock-step: a command that waited for its step's deadline
+            if now >= (deadline := self.deadline(self.step)):
+                (cmd, lag), self.due = self.due, None
+                self.integrate(cmd, now - deadline, lag)
+            return
+        while (self.free and self.step <= self.allowed and self.step < self.total_steps
+               and now >= self.deadline(self.step)):
             self.integrate(None, now - self.deadline(self.step))
             now = time.monotonic()
+
+    def take(self, cmd: Command) -> None:
+        """Lock-step: step k's command is here and the step granted: integrate it now, or (realtime) at its
+        deadline if that is still to come."""
+        if not self.paced or self.base is None:
+            self.integrate(cmd, None)
+            return
+        now = time.monotonic()
+        deadline = self.deadline(self.step)
+        lag, early = now - self.published_at, deadline - now
+        if early > self.scenario.dt:
+            self.due = (cmd, lag)  # (after a restart of the deadlines) the main thread integrates it then
+            return
+        if early > 0.0:  # at most a step: nothing else is due before it, so wait here (no thread hand-off)
+            sleep_precisely(early)
+            now = time.monotonic()
+        self.integrate(cmd, now - deadline, lag)
 
     def offer_free(self, cmd: Command) -> None:
         """Free-running: a command answering a state already out; it acts from the next step integrated."""
@@ -259,8 +291,11 @@ class SimNode(Node):
             self.warn("future_command",
                       f"dropped controller/command for step {cmd.step}: the sim is at step {self.step}")
             return
-        if self.step > self.allowed:
-            self.pending = cmd  # the controller was quicker than the tick: wait for the clock
+        if self.step > self.allowed or self.due is not None:
+            if self.due is None:
+                self.pending = cmd  # the controller was quicker than the tick: wait for the clock
+            else:
+                self.count("stale_commands")  # a repeated answer while the first waits for its deadline
             return
         if self.hold is not None:  # a command latency: this one acts later (or is lost)
             assert self.latency is not None
@@ -269,7 +304,7 @@ class SimNode(Node):
                 self.count("lost_commands")
             else:
                 self.hold.offer(cmd, cmd.step, cmd.step + delay)
-        self.integrate(cmd, None)
+        self.take(cmd)
 
     def select(self, k: int) -> tuple[Command, str]:
         """What acts on step k when commands may be late: the held command, or the watchdog's policy."""
@@ -300,8 +335,10 @@ class SimNode(Node):
         tensions = self.static.tensions(s.position, s.rotation, s.twist)
         return Command(k, k * self.scenario.dt, tuple(tensions.tolist())), "watchdog:static"
 
-    def integrate(self, received: Command | None, lateness: float | None) -> None:
-        """Step k: with ``received`` (lock-step) or what the hold selects (free-running, a latency)."""
+    def integrate(self, received: Command | None, lateness: float | None, lag: float | None = None) -> None:
+        """Step k: with ``received`` (lock-step) or what the hold selects (free-running, a latency).
+        ``lateness``: realtime, s after the step's deadline; ``lag``: s from the state going out to the
+        command's coming (default: to now)."""
         k = self.step
         if self.hold is None:
             assert received is not None
@@ -309,9 +346,10 @@ class SimNode(Node):
         else:
             cmd, status = self.select(k)
             if cmd.step != k or cmd.status != status:  # recorded as what acted on step k
-                cmd = dataclasses.replace(cmd, step=k, t=k * self.scenario.dt, status=status)
+                cmd = replace(cmd, step=k, t=k * self.scenario.dt, status=status)
         # The loop waits for the next state: it goes out first, the bookkeeping after.
-        lag = time.monotonic() - self.published_at
+        if lag is None:
+            lag = time.monotonic() - self.published_at
         report = self.sim.step(np.asarray(cmd.values))
         clamped = report.clamped_low or report.clamped_high
         self.clamped += bool(clamped)
@@ -341,7 +379,6 @@ class SimNode(Node):
             if self.flush_at <= k:
                 self.flush_at = -1
             self.flush()
-        self.sim.state()  # the rest of the new state's geometry, for the next step: while the controller works
 
     def close(self) -> None:
         log(self.name, f"stopped at step {self.step}/{self.total_steps}; clamped commands: {self.clamped}"

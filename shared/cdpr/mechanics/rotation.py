@@ -87,6 +87,21 @@ def matrix_to_quat(R: ArrayLike) -> Array:
     return np.array((x / n, y / n, z / n, w / n))
 
 
+def rotvec_quat(rx: float, ry: float, rz: float) -> tuple[float, float, float, float]:
+    """Rotation vector (axis × angle, any angle) → unit quaternion ``(qx, qy, qz, qw)`` with qw ≥ 0.
+
+    Python floats in and out (a sim reads the rotation vector of DART's ``FreeJoint`` every step).
+    ``sin(θ/2)/θ`` is its series below θ = 1e-4 (next term θ⁴/3840 < 1e-19 there).
+    """
+    theta = math.sqrt(rx * rx + ry * ry + rz * rz)
+    half = 0.5 * theta
+    k = math.sin(half) / theta if theta > 1e-4 else 0.5 - theta * theta / 48.0
+    w = math.cos(half)
+    if w < 0.0:  # θ beyond π (a planar joint's angle is not wrapped): the same rotation, −q
+        k, w = -k, -w
+    return k * rx, k * ry, k * rz, w
+
+
 def quat_matrix(x: Any, y: Any, z: Any, w: Any) -> Array:
     """The rotation matrix of the unit quaternion [x, y, z, w] (not normalised here): floats give (3, 3); arrays
     of one shape S give (3, 3, *S)."""

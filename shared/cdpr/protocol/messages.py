@@ -6,6 +6,14 @@ Payloads are msgpack maps with string keys. Every message carries the protocol v
 every step-stamped message the step number ``step`` (int ≥ 0) and the sim time ``t`` (s, = step·dt).
 Decoding validates type, length and finiteness and raises :class:`ProtocolError` with a one-line message
 that names the field; services log it, count it, and drop (or clamp, for tensions) as documented.
+
+The per-step messages (:class:`Tick`, :class:`State`, :class:`Setpoint`, :class:`Command`, :class:`Sensors`)
+are ``msgspec`` structs: msgspec encodes them and decodes a payload into a *wire type* (the message's fields
+behind a required ``v``, each field's type and bounds — an integer ≥ 0, a finite number, n finite numbers —
+checked in C), which is what a well-formed payload costs. A payload that fails there is decoded again by the
+reference checks written out below (``_checked``), which give the documented one-line error naming the
+field; they accept exactly what the protocol allows, so the fast path only ever takes payloads they take too,
+with the same result (tested on mutated payloads).
 """
 
 from __future__ import annotations
@@ -13,17 +21,22 @@ from __future__ import annotations
 import itertools
 import math
 import re
+import sys
 from collections.abc import Sequence
 from dataclasses import dataclass, field
-from typing import Any, Literal, get_args
+from typing import Annotated, Any, Literal, get_args
 
 import msgpack
+import msgspec
+from msgspec import UNSET, UnsetType
 
 from cdpr.mechanics.outputs import COMMAND_KINDS, CommandKind
 from cdpr.protocol.streams import STATE_COLUMNS
 from cdpr.protocol.wiring import TOPICS, WIRING
 
 PROTOCOL_VERSION = 2  # 2: ticks grant windows; setpoints and telemetry travel in blocks
+TELEMETRY_EVERY = 50  # states per sim/telemetry block at most...
+TELEMETRY_PERIOD = 0.2  # ...or seconds between two, whichever comes first: the clock hears of a slow loop too
 SESSION_RE = re.compile(r"^[A-Za-z0-9_-]{1,64}$")
 
 # Service names that can hold a liveliness token `cdpr/{session}/alive/{name}`: the nodes of the wiring table.
@@ -188,11 +201,53 @@ def _rows(msg: dict[Any, Any], name: str, n: int, width: int | None) -> list[tup
 
 
 # --------------------------------------------------------------------------------------------------
+# The msgspec side: field types with their bounds, wire types, the encoder
+
+_MAX = sys.float_info.max
+Finite = Annotated[float, msgspec.Meta(ge=-_MAX, le=_MAX)]  # a finite number (NaN and ±inf fail the bounds)
+Count = Annotated[int, msgspec.Meta(ge=0)]  # an integer >= 0 (not a bool)
+Floats = tuple[Finite, ...]
+
+
+def fixed(n: int) -> Any:
+    """The type of exactly ``n`` finite numbers."""
+    return Annotated[Floats, msgspec.Meta(min_length=n, max_length=n)]
+
+
+def _enc_hook(obj: Any) -> Any:
+    """What msgspec does not encode itself: numpy scalars and arrays (``.item()``, ``.tolist()``)."""
+    for convert in ("tolist", "item"):
+        if callable(method := getattr(obj, convert, None)):
+            return method()
+    raise NotImplementedError(f"cannot encode a {type(obj).__name__} in a message")
+
+
+_ENCODER = msgspec.msgpack.Encoder(enc_hook=_enc_hook)
+_WireField = tuple[str, Any] | tuple[str, Any, Any]
+_STRUCT = {"frozen": True, "gc": False, "tag_field": "v", "tag": PROTOCOL_VERSION}  # encodes as {"v": 2, …}
+
+
+def _wire(name: str, fields: Sequence[_WireField]) -> msgspec.msgpack.Decoder[Any]:
+    """A decoder of the wire type ``name``: a required ``v`` (the protocol version), then ``fields``
+    (``(name, type)`` or ``(name, type, default)``: a field with a default may be missing)."""
+    wire = msgspec.defstruct(name, [("v", Literal[PROTOCOL_VERSION]), *fields], frozen=True, gc=False)
+    return msgspec.msgpack.Decoder(wire)
+
+
+def _fast(decoder: msgspec.msgpack.Decoder[Any], payload: bytes | bytearray | memoryview) -> tuple[Any, ...] | None:
+    """The payload's fields after ``v`` as a tuple, or None if it is not a well-formed message of this type
+    (the caller then runs its reference checks, which name the field)."""
+    try:
+        return msgspec.structs.astuple(decoder.decode(payload))[1:]
+    except msgspec.MsgspecError:
+        return None
+
+
+# --------------------------------------------------------------------------------------------------
 # Messages
 
 
-@dataclass(frozen=True, slots=True)
-class Tick:
+class Tick(msgspec.Struct, **_STRUCT):
     """``clock/tick``: steps ``step`` … ``until`` (times ``t`` … ``until·dt``) may be computed.
 
     In fast mode a tick grants a window of steps; in realtime mode one step, at its deadline. ``resend``:
@@ -202,40 +257,54 @@ class Tick:
     ``free``: free-running realtime (``--sync free``): the sim integrates each granted step at its own
     wall-clock deadline, every ``dt`` from the first free grant, with the newest command it holds (it does
     not wait for one); without it, the sim integrates a step once its command has come (lock-step).
+    ``paced``: realtime lock-step: the sim integrates each granted step once its command has come and not
+    before its wall-clock deadline (the deadlines as with ``free``), and reports how late each one started.
     """
 
-    step: int
-    t: float
-    until: int = -1  # the last step granted (-1: ``step``)
+    step: Count
+    t: Finite
+    until: int = -1  # the last step granted (-1: ``step``; below ``step``: a ValueError)
     resend: bool = False
     flush: bool = False
     free: bool = False
+    paced: bool = False
 
     def __post_init__(self) -> None:
         if self.until < self.step:
-            object.__setattr__(self, "until", self.step)
+            if self.until != -1:
+                raise ValueError(f"until: must be >= step ({self.step}), got {self.until}")
+            msgspec.structs.force_setattr(self, "until", self.step)
 
     def encode(self) -> bytes:
-        msg = {"step": self.step, "t": self.t, "until": self.until, "resend": self.resend, "flush": self.flush}
-        if self.free:
-            msg["free"] = True
-        return pack(msg)
+        return _ENCODER.encode(self)
 
     @classmethod
     def decode(cls, payload: bytes) -> Tick:
+        fields = _fast(_TICK, payload)
+        if fields is not None and (fields[2] == -1 or fields[2] >= fields[0]):
+            return cls(*fields)
+        return cls._checked(payload)
+
+    @classmethod
+    def _checked(cls, payload: bytes) -> Tick:
         msg = unpack(payload)
         step = _int(msg, "step")
         until = _int(msg, "until") if "until" in msg else step
         if until < step:
             raise ProtocolError(f"until: must be >= step ({step}), got {until}")
-        resend, flush, free = msg.get("resend", False), msg.get("flush", False), msg.get("free", False)
-        if not isinstance(resend, bool) or not isinstance(flush, bool) or not isinstance(free, bool):
-            raise ProtocolError("resend, flush, free: expected true/false")
-        return cls(step, _float(msg, "t"), until, resend, flush, free)
+        flags = [msg.get(name, False) for name in _TICK_FLAGS]
+        for name, flag in zip(_TICK_FLAGS, flags, strict=True):
+            if not isinstance(flag, bool):
+                raise ProtocolError(f"{name}: expected true/false, got {type(flag).__name__}")
+        return cls(step, _float(msg, "t"), until, *flags)
 
 
-@dataclass(frozen=True, slots=True)
-class State:
+_TICK_FLAGS = ("resend", "flush", "free", "paced")
+_TICK = _wire("TickWire", [("step", Count), ("t", Finite), ("until", Count, -1),
+                           *((name, bool, False) for name in _TICK_FLAGS)])
+
+
+class State(msgspec.Struct, **_STRUCT):
     """``sim/state``: the platform at step ``step`` and what acted on it during the previous step.
 
     Its fields after ``step`` and ``t`` are the columns of :data:`cdpr.protocol.streams.STATE_COLUMNS`, in
@@ -253,10 +322,19 @@ class State:
     watchdog: int = 0  # 1 if the watchdog policy acted over the step before (instead of a command)
 
     def encode(self) -> bytes:
-        return pack({"step": self.step, "t": self.t, **{c: code(getattr(self, c)) for c, code in _STATE_CODE}})
+        return _ENCODER.encode(self)
 
     @classmethod
     def decode(cls, payload: bytes, cables: int | None = None) -> State:
+        fields = _fast(_STATE, payload)
+        if fields is not None:
+            m = len(fields[_PER_CABLE[0]]) if cables is None else cables
+            if all(len(fields[i]) == m for i in _PER_CABLE):
+                return cls(*fields)
+        return cls._checked(payload, cables)
+
+    @classmethod
+    def _checked(cls, payload: bytes, cables: int | None = None) -> State:
         msg = unpack(payload)
         step, t = _int(msg, "step"), _float(msg, "t")
         values: list[Any] = []
@@ -275,8 +353,16 @@ class State:
         return cls(step, t, *values)
 
 
-_STATE_CODE = tuple((c.name, int if c.integer else float if c.width == 1 else _floats)  # how each is packed
-                    for c in STATE_COLUMNS)
+def _column_type(c: Any) -> Any:
+    """A state column's wire type: an integer >= 0, a finite number, or its width's finite numbers (any
+    number for a per-cable column: they must agree with each other, checked after decoding)."""
+    return Count if c.integer else Finite if c.width == 1 else Floats if c.width is None else fixed(c.width)
+
+
+_STATE = _wire("StateWire", [("step", Count), ("t", Finite),
+                             *((c.name, _column_type(c)) if c.default is None else (c.name, _column_type(c), c.default)
+                               for c in STATE_COLUMNS)])
+_PER_CABLE = tuple(2 + i for i, c in enumerate(STATE_COLUMNS) if c.width is None)  # their places in a State
 
 
 def _state_block(msg: dict[Any, Any], n: int, cables: int | None) -> tuple[list[list[Any]], int | None]:
@@ -301,8 +387,7 @@ def _state_block(msg: dict[Any, Any], n: int, cables: int | None) -> tuple[list[
     return columns, cables
 
 
-@dataclass(frozen=True, slots=True)
-class Setpoint:
+class Setpoint(msgspec.Struct, **_STRUCT):
     """``trajectory/setpoint``: the desired pose, twist and acceleration at step ``step``."""
 
     step: int
@@ -312,18 +397,15 @@ class Setpoint:
     accel: tuple[float, ...]
 
     def encode(self) -> bytes:
-        return pack(
-            {
-                "step": self.step,
-                "t": self.t,
-                "pose": _floats(self.pose),
-                "twist": _floats(self.twist),
-                "accel": _floats(self.accel),
-            }
-        )
+        return _ENCODER.encode(self)
 
     @classmethod
     def decode(cls, payload: bytes) -> Setpoint:
+        fields = _fast(_SETPOINT, payload)
+        return cls._checked(payload) if fields is None else cls(*fields)
+
+    @classmethod
+    def _checked(cls, payload: bytes) -> Setpoint:
         msg = unpack(payload)
         return cls(
             _int(msg, "step"),
@@ -334,8 +416,11 @@ class Setpoint:
         )
 
 
-@dataclass(frozen=True, slots=True)
-class Command:
+_SETPOINT = _wire("SetpointWire", [("step", Count), ("t", Finite), ("pose", fixed(7)), ("twist", fixed(6)),
+                                   ("accel", fixed(6))])
+
+
+class Command(msgspec.Struct, frozen=True, gc=False):
     """``controller/command``: the cable tensions (N) — or the unstretched cable lengths (m) — to apply
     over [t_k, t_k + dt].
 
@@ -365,20 +450,29 @@ class Command:
         return self.tensions if self.lengths is None else self.lengths
 
     def encode(self) -> bytes:
-        return pack(
-            {
-                "step": self.step,
-                "t": self.t,
-                self.kind: _floats(self.values),
-                "feasible": bool(self.feasible),
-                "status": self.status,
-                **({} if self.solve_time is None else {"solve_time": float(self.solve_time)}),
-            }
-        )
+        lengths = self.lengths
+        return _ENCODER.encode(_CommandOut(
+            PROTOCOL_VERSION, self.step, self.t, self.tensions if lengths is None else UNSET,
+            UNSET if lengths is None else lengths, bool(self.feasible), self.status,
+            UNSET if self.solve_time is None else self.solve_time))
 
     @classmethod
     def decode(cls, payload: bytes, cables: int | None = None, expect: CommandKind | None = None) -> Command:
         """``expect`` (``"tensions"`` or ``"lengths"``): the kind the receiver takes (the other: an error)."""
+        f = _fast(_COMMAND, payload)
+        if f is not None:
+            step, t, tensions, lengths, feasible, status, solve_time = f
+            solve = None if solve_time is UNSET else solve_time
+            if lengths is UNSET:
+                if tensions is not UNSET and expect != "lengths" and (cables is None or len(tensions) == cables):
+                    return cls(step, t, tensions, feasible, status, None, solve)
+            elif (tensions is UNSET and expect != "tensions" and (cables is None or len(lengths) == cables)
+                  and (not lengths or min(lengths) > 0.0)):
+                return cls(step, t, (), feasible, status, lengths, solve)
+        return cls._checked(payload, cables, expect)
+
+    @classmethod
+    def _checked(cls, payload: bytes, cables: int | None = None, expect: CommandKind | None = None) -> Command:
         msg = unpack(payload)
         feasible = msg.get("feasible", True)
         status = msg.get("status", "ok")
@@ -403,8 +497,14 @@ class Command:
         return cls(step, t, (), feasible, status, lengths, solve_time)
 
 
-@dataclass(frozen=True, slots=True)
-class Sensors:
+_COMMAND_FIELDS: list[_WireField] = [
+    ("step", Count), ("t", Finite), ("tensions", Floats | UnsetType, UNSET), ("lengths", Floats | UnsetType, UNSET),
+    ("feasible", bool, True), ("status", str, "ok"), ("solve_time", Finite | UnsetType, UNSET)]
+_COMMAND = _wire("CommandWire", _COMMAND_FIELDS)
+_CommandOut = msgspec.defstruct("CommandOut", [("v", int), *_COMMAND_FIELDS], frozen=True, gc=False)
+
+
+class Sensors(msgspec.Struct, **_STRUCT):
     """``sim/sensors``: what the simulated sensors read at step ``step`` (noisy, biased, quantised).
 
     ``encoders`` (m, m): the cable lengths the winch encoders measure; ``load_cells`` (m, N): the cable
@@ -421,19 +521,17 @@ class Sensors:
     gyro: tuple[float, ...]
 
     def encode(self) -> bytes:
-        return pack(
-            {
-                "step": self.step,
-                "t": self.t,
-                "encoders": _floats(self.encoders),
-                "load_cells": _floats(self.load_cells),
-                "accel": _floats(self.accel),
-                "gyro": _floats(self.gyro),
-            }
-        )
+        return _ENCODER.encode(self)
 
     @classmethod
     def decode(cls, payload: bytes, cables: int | None = None) -> Sensors:
+        f = _fast(_SENSORS, payload)
+        if f is not None and len(f[3]) == len(f[2]) == (len(f[2]) if cables is None else cables):
+            return cls(*f)
+        return cls._checked(payload, cables)
+
+    @classmethod
+    def _checked(cls, payload: bytes, cables: int | None = None) -> Sensors:
         msg = unpack(payload)
         encoders = _vector(msg, "encoders", cables)
         return cls(
@@ -444,6 +542,10 @@ class Sensors:
             _vector(msg, "accel", 3),
             _vector(msg, "gyro", 3),
         )
+
+
+_SENSORS = _wire("SensorsWire", [("step", Count), ("t", Finite), ("encoders", Floats), ("load_cells", Floats),
+                                 ("accel", fixed(3)), ("gyro", fixed(3))])
 
 
 @dataclass(frozen=True, slots=True)
@@ -457,17 +559,44 @@ class Setpoints:
 
     def encode(self) -> bytes:
         s = self.items
-        return pack({"first": s[0].step if s else 0, "t": [x.t for x in s], "pose": _flat([x.pose for x in s]),
-                     "twist": _flat([x.twist for x in s]), "accel": _flat([x.accel for x in s])})
+        return _ENCODER.encode({"v": PROTOCOL_VERSION, "first": s[0].step if s else 0, "t": [x.t for x in s],
+                                "pose": _chain(x.pose for x in s), "twist": _chain(x.twist for x in s),
+                                "accel": _chain(x.accel for x in s)})
 
     @classmethod
     def decode(cls, payload: bytes) -> Setpoints:
+        f = _fast(_SETPOINTS, payload)
+        if f is not None:
+            first, t, pose, twist, accel = f
+            n = len(t)
+            if len(pose) == 7 * n and len(twist) == 6 * n and len(accel) == 6 * n:
+                return cls(tuple(itertools.starmap(Setpoint, zip(range(first, first + n), t, _split(pose, n, 7),
+                                                                 _split(twist, n, 6), _split(accel, n, 6),
+                                                                 strict=True))))
+        return cls._checked(payload)
+
+    @classmethod
+    def _checked(cls, payload: bytes) -> Setpoints:
         msg = unpack(payload)
         first = _int(msg, "first")
         t = _vector(msg, "t", None)
         n = len(t)
         pose, twist, accel = _rows(msg, "pose", n, 7), _rows(msg, "twist", n, 6), _rows(msg, "accel", n, 6)
         return cls(tuple(Setpoint(first + i, t[i], pose[i], twist[i], accel[i]) for i in range(n)))
+
+
+_SETPOINTS = _wire("SetpointsWire", [("first", Count), ("t", Floats), ("pose", Floats), ("twist", Floats),
+                                     ("accel", Floats)])
+
+
+def _chain(rows: Any) -> list[Any]:
+    """The rows one after the other, as one flat list (a block's column on the wire)."""
+    return list(itertools.chain.from_iterable(rows))
+
+
+def _split(flat: Sequence[Any], n: int, width: int) -> list[Any]:
+    """``n`` rows of ``width`` from a flat column (``len(flat) == n * width``)."""
+    return [flat[i:i + width] for i in range(0, n * width, width)] if width else [flat[:0]] * n
 
 
 @dataclass(frozen=True, slots=True)
@@ -495,13 +624,14 @@ class Telemetry:
     def encode(self) -> bytes:
         s, c, r = self.states, self.commands, self.sensors
         kind = c[0].kind if c else "tensions"
+        columns = list(zip(*(msgspec.structs.astuple(x) for x in s), strict=True)) or [()] * (2 + len(STATE_COLUMNS))
         msg: dict[str, Any] = {
-            "step": [x.step for x in s], "t": [x.t for x in s],
-            **{c.name: [getattr(x, c.name) for x in s] if c.width == 1 else _flat([getattr(x, c.name) for x in s])
-               for c in STATE_COLUMNS},
+            "v": PROTOCOL_VERSION, "step": columns[0], "t": columns[1],
+            **{col.name: columns[i] if col.width == 1 else _chain(columns[i])
+               for i, col in enumerate(STATE_COLUMNS, start=2)},
             "command": {
                 "step": [x.step for x in c], "t": [x.t for x in c], "kind": kind,
-                "values": _flat([x.values for x in c]),
+                "values": _chain(x.values for x in c),
                 "feasible": [bool(x.feasible) for x in c], "status": [x.status for x in c],
                 "solve_time": [-1.0 if x.solve_time is None else float(x.solve_time) for x in c],
                 "lag": _floats(self.lags),
@@ -517,10 +647,16 @@ class Telemetry:
                 "load_cells": _flat([x.load_cells for x in r]), "accel": _flat([x.accel for x in r]),
                 "gyro": _flat([x.gyro for x in r]),
             }
-        return pack(msg)
+        return _ENCODER.encode(msg)
 
     @classmethod
     def decode(cls, payload: bytes, cables: int | None = None) -> Telemetry:
+        f = _fast(_TELEMETRY, payload)
+        block = None if f is None else _telemetry(f, cables)
+        return cls._checked(payload, cables) if block is None else block
+
+    @classmethod
+    def _checked(cls, payload: bytes, cables: int | None = None) -> Telemetry:
         msg = unpack(payload)
         steps = _ints(msg, "step")
         n = len(steps)
@@ -563,6 +699,71 @@ class Telemetry:
             sensors = tuple(Sensors(r_steps[i], r_t[i], enc[i], cells[i], acc[i], gyro[i]) for i in range(j))
         resume = Resume.from_map(msg["resume"], "resume: ") if "resume" in msg else None
         return cls(states, commands, lags, sensors, lateness, resume)
+
+
+_COMMAND_BLOCK = msgspec.defstruct("CommandBlockWire", [
+    ("step", list[Count]), ("t", Floats), ("kind", Literal["tensions", "lengths"]), ("values", Floats),
+    ("feasible", list[bool]), ("status", list[str]), ("solve_time", Floats), ("lag", Floats),
+    ("lateness", Floats | UnsetType, UNSET)], frozen=True, gc=False)
+_SENSORS_BLOCK = msgspec.defstruct("SensorsBlockWire", [
+    ("step", list[Count]), ("t", Floats), ("encoders", Floats), ("load_cells", Floats), ("accel", Floats),
+    ("gyro", Floats)], frozen=True, gc=False)
+_TELEMETRY = _wire("TelemetryWire", [
+    ("step", list[Count]), ("t", Floats), *((c.name, list[Count] if c.integer else Floats) for c in STATE_COLUMNS),
+    ("command", _COMMAND_BLOCK), ("sensors", _SENSORS_BLOCK | UnsetType, UNSET),
+    ("resume", msgspec.Raw | UnsetType, UNSET)])
+
+
+def _telemetry(f: tuple[Any, ...], cables: int | None) -> Telemetry | None:
+    """A telemetry block from its decoded wire fields, or None where the columns' lengths do not agree (the
+    reference checks then say which)."""
+    steps, t, *state_columns, c, r, resume_raw = f
+    n = len(steps)
+    if len(t) != n:
+        return None
+    columns: list[Any] = []
+    for col, values in zip(STATE_COLUMNS, state_columns, strict=True):
+        if col.width is None and cables is None and n:
+            if len(values) % n:
+                return None
+            cables = len(values) // n
+        width = 1 if col.width == 1 else cables if col.width is None else col.width
+        if width is None:  # an empty block without a cable count: an empty column
+            if values:
+                return None
+            columns.append([])
+            continue
+        if len(values) != n * width:
+            return None
+        columns.append(values if col.width == 1 else _split(values, n, width))
+    m = cables or 0
+    k = len(c.step)
+    if not (len(c.t) == len(c.feasible) == len(c.status) == len(c.solve_time) == len(c.lag) == k) \
+            or (k and len(c.values) != k * m) or (c.lateness is not UNSET and len(c.lateness) != k):
+        return None
+    values = _split(c.values, k, m) if k else []
+    tensions = c.kind == "tensions"
+    commands = tuple(Command(step, ct, v if tensions else (), ok, status, None if tensions else v,
+                             solve if solve >= 0.0 else None)
+                     for step, ct, v, ok, status, solve in zip(c.step, c.t, values, c.feasible, c.status,
+                                                               c.solve_time, strict=False))
+    sensors: tuple[Sensors, ...] = ()
+    if r is not UNSET:
+        j = len(r.step)
+        if not (len(r.t) == j and len(r.encoders) == len(r.load_cells) == j * m and len(r.accel) == len(r.gyro)
+                == 3 * j):
+            return None
+        sensors = tuple(itertools.starmap(Sensors, zip(r.step, r.t, _split(r.encoders, j, m),
+                                                       _split(r.load_cells, j, m), _split(r.accel, j, 3),
+                                                       _split(r.gyro, j, 3), strict=True)))
+    resume = None
+    if resume_raw is not UNSET:
+        try:
+            resume = Resume.from_map(msgpack.unpackb(bytes(resume_raw), raw=False, strict_map_key=False), "resume: ")
+        except ProtocolError:
+            return None
+    states = tuple(itertools.starmap(State, zip(steps, t, *columns, strict=True)))
+    return Telemetry(states, commands, c.lag, sensors, () if c.lateness is UNSET else c.lateness, resume)
 
 
 @dataclass(frozen=True, slots=True)

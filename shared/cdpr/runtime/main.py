@@ -17,7 +17,7 @@ from collections.abc import Callable, Sequence
 from typing import TYPE_CHECKING, NoReturn
 
 from cdpr.errors import InputError
-from cdpr.runtime.options import RT_PRIORITY, SESSION_OPTIONS, add_options
+from cdpr.runtime.options import REALTIME_OPTIONS, SESSION_OPTIONS, add_options
 
 if TYPE_CHECKING:
     from cdpr.config.scenario import Scenario
@@ -45,7 +45,7 @@ def parser_for(name: str) -> argparse.ArgumentParser:
     doc = (cls.__doc__ or "").strip().splitlines()
     parser = argparse.ArgumentParser(prog=f"cdpr {name}", description=doc[0] if doc else None)
     parser.add_argument("scenario", help="a shipped scenario name (caroca_15kg) or a scenario YAML file")
-    add_options(parser, (*SESSION_OPTIONS, RT_PRIORITY))
+    add_options(parser, (*SESSION_OPTIONS, *REALTIME_OPTIONS))
     add_zenoh_arguments(parser)
     cls.add_arguments(parser)
     return parser
@@ -72,7 +72,7 @@ def node_main(name: str, argv: Sequence[str] | None = None, before_serve: Callab
     services wait there for the session's router, :mod:`cdpr.tools.launch`)."""
     from cdpr.protocol import Keys
     from cdpr.runtime.registry import node_class
-    from cdpr.runtime.service import serve, set_realtime_priority
+    from cdpr.runtime.service import hold_cpu_latency, serve, set_realtime_priority
     from cdpr.runtime.transport import zenoh_config
 
     try:
@@ -92,6 +92,8 @@ def node_main(name: str, argv: Sequence[str] | None = None, before_serve: Callab
         node = cls.from_args(scenario, keys, args)
         if args.rt_priority is not None:
             set_realtime_priority(args.rt_priority)  # before Zenoh's threads exist: they inherit it
+        if args.cpu_latency is not None:
+            hold_cpu_latency(args.cpu_latency)
     except InputError as exc:
         _fail(str(exc))
     if before_serve is not None:

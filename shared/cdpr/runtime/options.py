@@ -76,6 +76,11 @@ SESSION_OPTIONS = (
 )
 RT_PRIORITY = Option("--rt-priority", "run under SCHED_FIFO at this priority (realtime mode on a busy machine; "
                      "needs CAP_SYS_NICE)", type=int, metavar="1-99")  # (the range is checked where it is set)
+CPU_LATENCY = Option("--cpu-latency", "hold Linux's CPU wake-up latency limit (PM QoS, /dev/cpu_dma_latency) at US "
+                     "microseconds while this runs: 0 keeps idle CPUs polling instead of sleeping, so a message wakes "
+                     "its receiver at once (realtime at 1-2 kHz; as cyclictest does; needs root or write access to "
+                     "the device)", type=int, metavar="US", bounds=(0, 2_000_000_000))
+REALTIME_OPTIONS = (RT_PRIORITY, CPU_LATENCY)
 # Where the recorder writes or streams the session (cdpr_recorder; cdpr run/up pass them on).
 RECORDER_OPTIONS = (
     Option("--rrd", "write the recording to this .rrd file", metavar="FILE"),

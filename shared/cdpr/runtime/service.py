@@ -21,11 +21,14 @@ Two ways to run a node, one event at a time either way:
 from __future__ import annotations
 
 import argparse
+import contextlib
+import ctypes
 import faulthandler
 import gc
 import math
 import os
 import signal
+import struct
 import threading
 import time
 from collections import deque
@@ -185,6 +188,34 @@ def set_realtime_priority(priority: int, inherited: bool = True) -> None:
         ) from None
 
 
+_cpu_latency_requests: list[int] = []  # the open /dev/cpu_dma_latency: the limit holds while it is open
+
+
+def hold_cpu_latency(microseconds: int) -> None:
+    """Hold Linux's PM QoS CPU latency limit at ``microseconds`` for as long as this process lives (or until
+    :func:`release_cpu_latency`): the kernel keeps every CPU out of idle states slower to leave than that.
+    With 0 an idle CPU polls instead of halting, so the thread a message wakes runs at once instead of after
+    the CPU (in a virtual machine: the vCPU) comes back from sleep — tens of µs per hop, every step. The
+    setting of realtime Linux benchmarks (cyclictest) and of tuned's ``latency-performance`` profile; it costs
+    power (idle CPUs stay busy). Needs root, or write access to ``/dev/cpu_dma_latency`` (Docker: map the
+    device); otherwise an InputError saying so."""
+    if microseconds < 0:
+        raise InputError(f"--cpu-latency: must be 0 or more microseconds, got {microseconds}")
+    try:
+        fd = os.open("/dev/cpu_dma_latency", os.O_WRONLY)
+    except OSError as exc:
+        raise InputError(f"--cpu-latency: cannot open /dev/cpu_dma_latency ({exc.strerror}): it needs root or "
+                         "write access to the device (docker: --device /dev/cpu_dma_latency)") from None
+    os.write(fd, struct.pack("i", microseconds))
+    _cpu_latency_requests.append(fd)
+
+
+def release_cpu_latency() -> None:
+    """Drop the limits :func:`hold_cpu_latency` holds (the kernel's default applies again)."""
+    while _cpu_latency_requests:
+        os.close(_cpu_latency_requests.pop())
+
+
 def _realtime_scheduled() -> bool:
     """Whether the calling thread runs under SCHED_FIFO (see :func:`set_realtime_priority`)."""
     if not hasattr(os, "sched_getscheduler"):
@@ -290,6 +321,20 @@ def _sleep_until(wake: threading.Event, deadline: float, precise: bool) -> None:
         return
     while time.monotonic() < deadline and not wake.is_set():
         time.sleep(0)
+
+
+_PR_SET_TIMERSLACK = 29  # prctl(2)
+_precise_threads = threading.local()
+
+
+def sleep_precisely(seconds: float) -> None:
+    """Sleep ``seconds`` (a realtime step or less) on the calling thread, its timer slack set to 1 µs first
+    (Linux's default lets a sleeping thread wake up to 50 µs late; the setting is per thread, made once)."""
+    if not getattr(_precise_threads, "set", False):
+        _precise_threads.set = True
+        with contextlib.suppress(OSError, AttributeError):
+            ctypes.CDLL(None, use_errno=True).prctl(_PR_SET_TIMERSLACK, 1, 0, 0, 0)
+    time.sleep(seconds)
 
 
 def declare_topics(node: Node, session: zenoh.Session, inbox: Inbox) -> list[Any]:

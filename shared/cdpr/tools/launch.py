@@ -45,7 +45,7 @@ from cdpr.errors import InputError
 from cdpr.protocol import Keys, ProtocolError, ServiceStats, Setpoints, Status, Telemetry
 from cdpr.runtime.main import build_node
 from cdpr.runtime.options import RECORDER_OPTIONS, options_argv
-from cdpr.runtime.service import PARENT_ENV, serve_composed, set_realtime_priority
+from cdpr.runtime.service import PARENT_ENV, hold_cpu_latency, serve_composed, set_realtime_priority
 from cdpr.runtime.transport import (
     Inbox,
     StopFlag,
@@ -308,6 +308,7 @@ class RunOptions:
     join_timeout: float | None = None
     rejoin_timeout: float | None = None  # the clock's --rejoin-timeout (None: its default)
     rt_priority: int | None = None
+    cpu_latency: int | None = None  # µs: the PM QoS CPU latency limit the launcher holds (system-wide)
     in_process: bool = False
     mcap: str | None = None
     foxglove: int | None = None
@@ -382,6 +383,8 @@ def run_session(scenario: Scenario, opts: RunOptions | None = None) -> int:
         # the session's router (this process); each loop service sets its own (--rt-priority above),
         # the recorder keeps the normal scheduling (it writes in bursts: no CPU to take from the loop)
         set_realtime_priority(opts.rt_priority, inherited=opts.in_process)
+    if opts.cpu_latency is not None:
+        hold_cpu_latency(opts.cpu_latency)  # for every CPU, as long as this process lives: the whole session
     stop = StopFlag().install()
     conf = isolated_config() if opts.in_process else zenoh_config("router", listen=listen_eps)
     # The services are forked now, before the router's threads exist, and wait for it (Forked).

@@ -15,8 +15,9 @@ when the machine is shared and its absolute speed drifts):
    each answering in its :class:`cdpr.runtime.transport.Inbox` callback, ``PUBLISH_OPTS``; as clients of a
    router (how remote participants talk) and as peers linked directly (how ``cdpr run``'s services
    talk): the floor of one hop;
-4. ``realtime``: ``cdpr run SCENARIO --mode realtime --duration D``: the share of ticks issued within
-   1 ms of their deadline and the lateness percentiles;
+4. ``realtime``: ``cdpr run SCENARIO --mode realtime --duration D`` (1 kHz) and the same at 2 kHz
+   (``caroca_15kg_2khz``): the share of steps the sim started within dt of their deadline and the lateness
+   percentiles, with the defaults, ``--cpu-latency 0`` and ``--rt-priority``, a sleeping probe beside each;
 5. ``tda``: the tension distribution's solve time per method for 4, 8, 12 and 16 cables, along a
    smooth path (as in the loop: warm), on random well-conditioned robots built here;
 6. ``scaling``: steps/s and CPU per step with 1, 2, 4, 8 concurrent sessions, and with 4 → 16 cables
@@ -52,6 +53,8 @@ from cdpr.tools.bench.loops import (
 )
 from cdpr.tools.bench.plan import BENCH_VERSION, FULL, QUICK, BenchPlan, _log
 from cdpr.tools.bench.robots import bench_tda, robot_spec, scenario_yaml, tda_path
+
+REALTIME_2KHZ = "caroca_15kg_2khz"  # the paper's 15 kg session at dt = 0.5 ms: the 2 kHz realtime runs
 
 __all__ = ["BENCH_VERSION", "FULL", "QUICK", "BenchPlan", "monolithic_steps", "robot_spec", "rt_priority_allowed",
            "run_bench", "scenario_yaml", "table", "tda_path"]
@@ -113,6 +116,23 @@ def targets(result: dict[str, Any]) -> dict[str, dict[str, Any]]:
         out["realtime_on_time_rt_priority>=0.999"] = target(
             fifo["on_time_fraction"], fifo["on_time_fraction"] >= 0.999, over_s=fifo["duration_s"],
             machine=fifo["probe_on_time_fraction"])
+    # #33: 1 kHz with the defaults within 0.1 points of the sleeping probe; 2 kHz >= 99 % (or within 0.2
+    # points of the probe when the machine gives a sleeping thread less), >= 99.9 % with --rt-priority
+    probe = rt["probe_on_time_fraction"]
+    if probe is not None:
+        out["realtime_1khz>=probe-0.001"] = target(rt["on_time_fraction"] - probe,
+                                                   rt["on_time_fraction"] >= probe - 0.001, machine=probe)
+    if (fast := result.get("realtime_2khz")) is not None:
+        for name, run in (("", fast), ("_cpu_latency_0", fast.get("cpu_latency"))):
+            if run is not None:
+                probe_2k = run["probe_on_time_fraction"]
+                bar = 0.99 if probe_2k is None else min(0.99, probe_2k - 0.002)
+                out[f"realtime_2khz{name}>=0.99"] = target(run["on_time_fraction"], run["on_time_fraction"] >= bar,
+                                                           bar=bar, machine=run["probe_on_time_fraction"])
+        if (fifo := fast.get("rt_priority")) is not None:
+            out["realtime_2khz_rt_priority>=0.999"] = target(fifo["on_time_fraction"],
+                                                             fifo["on_time_fraction"] >= 0.999,
+                                                             machine=fifo["probe_on_time_fraction"])
     tda8 = next((s for s in result["tda"]["sizes"] if s["cables"] == 8), None)
     if tda8 is not None:
         qp, diff = tda8["methods"]["qp"]["median_us"], tda8["qp_max_difference_N"]
@@ -159,8 +179,10 @@ def run_bench(plan: BenchPlan, scenario: str = "caroca_15kg", out: Path | None =
     from cdpr.tools.bench.zenoh_rtt import bench_zenoh_rtt  # here: its processes run it as __main__
 
     result["zenoh_rtt"] = bench_zenoh_rtt(plan.rtt_count)
-    part("realtime", f"realtime mode ({plan.realtime_duration:g} s)")
+    part("realtime", f"realtime mode, 1 kHz ({plan.realtime_duration:g} s) and 2 kHz "
+                     f"({plan.realtime_2khz_duration:g} s): defaults, --cpu-latency 0, --rt-priority")
     result["realtime"] = bench_realtime(scenario, plan.realtime_duration)
+    result["realtime_2khz"] = bench_realtime(REALTIME_2KHZ, plan.realtime_2khz_duration)
     part("tda", f"tension distribution ({', '.join(map(str, plan.tda_sizes))} cables)")
     result["tda"] = bench_tda(plan.tda_sizes, plan.tda_calls)
     part("scaling", f"scaling ({', '.join(map(str, plan.session_counts))} sessions; "
@@ -191,6 +213,25 @@ def _fmt(x: Any, digits: int = 0) -> str:
     return str(x)
 
 
+def _realtime_rows(rt: dict[str, Any], title: str) -> list[tuple[str, str]]:
+    """A realtime part's rows: the run with the defaults, with --cpu-latency 0, with --rt-priority."""
+    ms = f"{1e3 * rt['dt']:g} ms"
+    rows: list[tuple[str, str]] = []
+    fifo = rt.get("rt_priority")
+    awake = " --cpu-latency 0" if fifo is not None and fifo.get("cpu_latency_us") == 0 else ""
+    for label, run in ((f"{title}, {rt['duration_s']:g} s: steps within {ms}", rt),
+                       (f"  with --cpu-latency 0: steps within {ms}", rt.get("cpu_latency")),
+                       (f"  with --rt-priority{awake}: within {ms}", fifo)):
+        if run is None:
+            rows.append((label, "not permitted here"))
+            continue
+        rows += [(label, f"{100 * run['on_time_fraction']:.3f} %"),
+                 ("    lateness p50 / p99 / p99.9 / max, ms",
+                  " / ".join(f"{run[f'lateness_{p}_ms']:.3f}" for p in ("p50", "p99", "p999", "max"))),
+                 *_realtime_profile(run)]
+    return rows
+
+
 def _realtime_profile(rt: dict[str, Any]) -> list[tuple[str, str]]:
     """A realtime run's profile rows: each process's CPU and wait for a CPU per step, the machine."""
     cpu, wait = rt.get("cpu_us_per_step_by_process") or {}, rt.get("wait_us_per_step_by_process") or {}
@@ -203,7 +244,7 @@ def _realtime_profile(rt: dict[str, Any]) -> list[tuple[str, str]]:
         rows.append(("    machine idle / stolen by the host", f"{100 * rt['machine_idle_fraction']:.1f} % / "
                      f"{100 * rt['machine_steal_fraction']:.2f} %"))
     if rt.get("probe_on_time_fraction") is not None:
-        rows.append(("    a sleeping probe beside it: wakes within 1 ms",
+        rows.append((f"    a sleeping probe beside it: wakes within {1e3 * rt.get('dt', 1e-3):g} ms",
                      f"{100 * rt['probe_on_time_fraction']:.3f} % (max {rt['probe_max_ms']:.1f} ms)"))
     return rows
 
@@ -238,24 +279,11 @@ def table(r: dict[str, Any]) -> str:
         ("  peers linked directly (as in cdpr run), median us", _fmt(rtt["peers"]["median_us"], 1)),
         ("    p99 us", _fmt(rtt["peers"]["p99_us"], 1)),
         ("    one message (half), us", _fmt(rtt["peers"]["one_way_us"], 1)),
-        (f"4 realtime 1 kHz, {rt['duration_s']:g} s: ticks within 1 ms",
-         f"{100 * rt['on_time_fraction']:.3f} %"),
-        ("    lateness p50 / p99 / p99.9 / max, ms",
-         " / ".join(f"{rt[f'lateness_{p}_ms']:.3f}" for p in ("p50", "p99", "p999", "max"))),
-        # a step's state → command → state, without waiting for ticks: what 1 ms must hold
-        ("    one step of the fast loop above, ms (1 kHz: < 1)", _fmt(1e3 / dist["steps_per_s"], 2)),
-        *_realtime_profile(rt),
+        # a step's state → command → state: what dt must hold (1 kHz: < 1 ms, 2 kHz: < 0.5 ms)
+        ("4 one step of the fast loop above, ms", _fmt(1e3 / dist["steps_per_s"], 2)),
+        *_realtime_rows(rt, "  realtime 1 kHz"),
+        *(_realtime_rows(r["realtime_2khz"], "  realtime 2 kHz") if "realtime_2khz" in r else ()),
     ]
-    if (fifo := rt.get("rt_priority")) is not None:
-        rows += [
-            (f"  with --rt-priority {fifo['priority']} (SCHED_FIFO): ticks within 1 ms",
-             f"{100 * fifo['on_time_fraction']:.3f} %"),
-            ("    lateness p50 / p99 / p99.9 / max, ms",
-             " / ".join(f"{fifo[f'lateness_{p}_ms']:.3f}" for p in ("p50", "p99", "p999", "max"))),
-            *_realtime_profile(fifo),
-        ]
-    else:
-        rows.append(("  with --rt-priority", "not permitted here"))
     lines = [
         f"cdpr bench{' --quick' if r['quick'] else ''}: {r['scenario']}, "
         f"{mach['nproc']} x {mach['cpu_model']}, "
@@ -307,5 +335,5 @@ def target_line(name: str, t: dict[str, Any]) -> str:
     machine gave a thread that only sleeps until each millisecond, in the same minutes (``machine``)."""
     line = f"    {name:36s} {_fmt(t['value'], 4):>14s}  {'met' if t['met'] else 'MISSED'}"
     if not t["met"] and t.get("machine") is not None:
-        line += f" (a sleeping probe beside it: {100.0 * t['machine']:.3f} % within 1 ms)"
+        line += f" (a sleeping probe beside it: {100.0 * t['machine']:.3f} % on time)"
     return line

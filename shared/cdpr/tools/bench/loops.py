@@ -21,72 +21,98 @@ import numpy as np
 import yaml
 
 from cdpr.config.scenario import Scenario, load_scenario
-from cdpr.protocol import Command, Setpoint, State, Tick
+from cdpr.protocol import TELEMETRY_EVERY, Command, Setpoint, Setpoints, State, Telemetry, Tick
 from cdpr.tools.bench.robots import robot_spec, scenario_yaml
 
 # --------------------------------------------------------------------------------------------------
 # 1. The monolithic loop
 
 
+MONOLITHIC_WINDOW = 100  # steps per grant, as the clock's default --lookahead grants them in fast mode
+
+
 def monolithic_steps(scenario: Scenario, steps: int, timers: dict[str, float] | None = None) -> float:
     """Run ``steps`` steps of the loop in this process; returns the wall time (s).
 
-    Per step, exactly the work of the services minus the messaging: the clock's tick (encoded, decoded
-    by the sim and the trajectory), the trajectory's setpoint, the sim's state (decoded by the clock and
-    the controller), the controller's step and command, the sim's decoding of it and its DART step.
-    With ``timers`` the time of each part is added to it (``sim``, ``controller``, ``trajectory``,
-    ``messages``), at the price of a few clock reads per step.
+    Exactly the work of the services in fast mode minus the transport, message for message as protocol 2
+    sends them: per window of :data:`MONOLITHIC_WINDOW` steps the clock's tick (encoded, decoded by the sim
+    and the trajectory) and the trajectory's block of setpoints (encoded, decoded by the controller); per
+    step the sim's state (encoded, decoded by the controller), the controller's step and command (encoded,
+    decoded by the sim) and the sim's step; per :data:`cdpr.protocol.TELEMETRY_EVERY` steps the sim's
+    telemetry block (encoded, decoded by the clock). With ``timers`` the time of each part is added to it
+    (``sim``, ``controller``, ``trajectory``, ``messages``), at the price of a few clock reads per step.
     """
     from cdpr.runtime.registry import node_class
 
-    sim_node = node_class("sim")
-    sim = sim_node.make_core(scenario)
+    sim = node_class("sim").make_core(scenario)
     core = node_class("controller").make_core(scenario)
     setpoint_at = node_class("trajectory").make_core(scenario)
     m, dt = scenario.robot.m, scenario.dt
     clock = time.perf_counter
-    if timers is None:
-        t0 = clock()
-        for k in range(steps):
-            tick = Tick(k, k * dt).encode()
-            Tick.decode(tick)
-            setpoint = setpoint_at(Tick.decode(tick).step).encode()
-            state = sim.message(0).encode()
-            State.decode(state)  # the clock
-            st, sp = State.decode(state, m), Setpoint.decode(setpoint)
-            result = core.step(st, sp)
-            command = Command(st.step, st.t, tuple(result.tensions.tolist()), result.feasible, result.status)
-            sim.step(np.asarray(Command.decode(command.encode(), m).tensions))
-        return clock() - t0
-    t0 = clock()
+    parts = dict.fromkeys(("sim", "controller", "trajectory", "messages"), 0.0)
+    states: list[State] = []
+    commands: list[Command] = []
+    setpoints: tuple[Setpoint, ...] = ()
+    timed = timers is not None
+    t0 = a = clock()
     for k in range(steps):
-        a = clock()
-        tick = Tick(k, k * dt).encode()
-        Tick.decode(tick)
-        step = Tick.decode(tick).step
-        b = clock()
-        sp_msg = setpoint_at(step)
-        c = clock()
-        setpoint = sp_msg.encode()
-        d = clock()
+        if k % MONOLITHIC_WINDOW == 0:  # the clock grants a window, the trajectory sends its setpoints
+            until = min(steps, k + MONOLITHIC_WINDOW) - 1
+            tick = Tick(k, k * dt, until).encode()
+            Tick.decode(tick)
+            granted = Tick.decode(tick)
+            if timed:
+                b = clock()
+                parts["messages"] += b - a
+            block = Setpoints(tuple(setpoint_at(j) for j in range(granted.step, granted.until + 1)))
+            if timed:
+                a = clock()
+                parts["trajectory"] += a - b
+            setpoints = Setpoints.decode(block.encode()).items
+            if timed:
+                b = clock()
+                parts["messages"] += b - a
+                a = b
         st_msg = sim.message(0)
-        e = clock()
-        state = st_msg.encode()
-        State.decode(state)
-        st, sp = State.decode(state, m), Setpoint.decode(setpoint)
-        f = clock()
-        result = core.step(st, sp)
-        g = clock()
+        if timed:
+            b = clock()
+            parts["sim"] += b - a
+            a = b
+        st = State.decode(st_msg.encode(), m)
+        if timed:
+            b = clock()
+            parts["messages"] += b - a
+            a = b
+        result = core.step(st, setpoints[k % MONOLITHIC_WINDOW])
+        if timed:
+            b = clock()
+            parts["controller"] += b - a
+            a = b
         command = Command(st.step, st.t, tuple(result.tensions.tolist()), result.feasible, result.status)
         tensions = np.asarray(Command.decode(command.encode(), m).tensions)
-        h = clock()
+        if timed:
+            b = clock()
+            parts["messages"] += b - a
+            a = b
         sim.step(tensions)
-        i = clock()
-        timers["messages"] += (b - a) + (d - c) + (f - e) + (h - g)
-        timers["trajectory"] += c - b
-        timers["sim"] += (e - d) + (i - h)
-        timers["controller"] += g - f
-    return clock() - t0
+        if timed:
+            b = clock()
+            parts["sim"] += b - a
+            a = b
+        states.append(st_msg)
+        commands.append(command)
+        if len(states) == TELEMETRY_EVERY or k == steps - 1:  # the sim's report, read by the clock
+            Telemetry.decode(Telemetry(tuple(states), tuple(commands), (0.0,) * len(commands)).encode(), m)
+            states, commands = [], []
+            if timed:
+                b = clock()
+                parts["messages"] += b - a
+                a = b
+    elapsed = clock() - t0
+    if timers is not None:
+        for name, value in parts.items():
+            timers[name] += value
+    return elapsed
 
 
 def monolithic_timers(scenario: Scenario, steps: int) -> dict[str, float]:
@@ -345,23 +371,28 @@ def _cpu_stat() -> dict[str, int]:
 
 _PROBE = """
 import sys, time
+period = float(sys.argv[1])
 lat, nxt = [], time.monotonic()
 while True:
-    nxt += 0.001
+    nxt += period
     time.sleep(max(0.0, nxt - time.monotonic()))
     lat.append(time.monotonic() - nxt)
     if len(lat) % 1000 == 0 and sys.stdin in __import__("select").select([sys.stdin], [], [], 0)[0]:
         break
-print(sum(x <= 0.001 for x in lat) / max(1, len(lat)), 1e3 * max(lat, default=0.0))
+print(sum(x <= period for x in lat) / max(1, len(lat)), 1e3 * max(lat, default=0.0))
 """
 
 
 class SleeperProbe:
-    """A process that sleeps until each millisecond, as the clock does, and counts how late it woke:
-    the lateness the machine itself gives a sleeping thread (what is left is the loop's own)."""
+    """A process that sleeps until each deadline, ``period`` seconds apart (a step), and counts how often it
+    woke more than a period late: the lateness the machine itself gives a sleeping thread (what is left is
+    the loop's own)."""
+
+    def __init__(self, period: float = 0.001) -> None:
+        self.period = period
 
     def __enter__(self) -> SleeperProbe:
-        self.proc = subprocess.Popen([sys.executable, "-c", _PROBE], stdin=subprocess.PIPE,
+        self.proc = subprocess.Popen([sys.executable, "-c", _PROBE, repr(self.period)], stdin=subprocess.PIPE,
                                      stdout=subprocess.PIPE, text=True)
         self.on_time_fraction: float | None = None
         self.max_ms: float | None = None
@@ -393,18 +424,27 @@ def rt_priority_allowed(priority: int = RT_PRIORITY) -> bool:
         return False
 
 
+def cpu_latency_allowed() -> bool:
+    """Whether this process may hold the PM QoS CPU latency limit (``--cpu-latency``: /dev/cpu_dma_latency)."""
+    return os.access("/dev/cpu_dma_latency", os.W_OK)
+
+
 def bench_realtime(scenario: str, duration: float) -> dict[str, Any]:
-    """The realtime run with the normal scheduler, then (if permitted) with ``--rt-priority``."""
+    """The realtime runs of ``scenario`` (its dt: 1 or 2 kHz): with the defaults (the normal scheduler, the
+    CPUs free to sleep), then where permitted with ``--cpu-latency 0`` (``cpu_latency``), and with
+    ``--rt-priority`` (``rt_priority``: with ``--cpu-latency 0`` too where permitted). A sleeping probe beside
+    each run wakes every dt, as the loop must."""
     keys = ("on_time_fraction", "lateness_p50_ms", "lateness_p99_ms", "lateness_p999_ms", "lateness_max_ms")
+    dt = load_scenario(scenario).dt
 
     def one(extra: list[str]) -> dict[str, Any]:
         args = [scenario, "--mode", "realtime", "--duration", repr(duration), *extra]
         stat0 = _cpu_stat()
-        with SleeperProbe() as probe:
+        with SleeperProbe(dt) as probe:
             s = _run_sessions([args], "rt", 900.0)[0]
         stat1 = _cpu_stat()
         busy = {k: (stat1[k] - stat0[k]) / max(1, stat1["total"] - stat0["total"]) for k in ("steal", "idle")}
-        return {"duration_s": duration, "steps": s["steps"], "late_ticks": s["late_ticks"],
+        return {"duration_s": duration, "dt": dt, "steps": s["steps"], "late_ticks": s["late_ticks"],
                 **{k: s[k] for k in keys},
                 # the profile of the run: what each process costs per step, how long it waited for a
                 # CPU; the machine's idle and stolen shares; a sleeping probe's own wake-up lateness
@@ -414,7 +454,10 @@ def bench_realtime(scenario: str, duration: float) -> dict[str, Any]:
                 "probe_on_time_fraction": probe.on_time_fraction, "probe_max_ms": probe.max_ms}
 
     result = one([])
-    result["rt_priority"] = (one(["--rt-priority", str(RT_PRIORITY)]) | {"priority": RT_PRIORITY}
+    awake = cpu_latency_allowed()
+    result["cpu_latency"] = one(["--cpu-latency", "0"]) | {"microseconds": 0} if awake else None
+    result["rt_priority"] = (one(["--rt-priority", str(RT_PRIORITY), *(["--cpu-latency", "0"] if awake else [])])
+                             | {"priority": RT_PRIORITY, "cpu_latency_us": 0 if awake else None}
                              if rt_priority_allowed() else None)
     return result
 

@@ -5,10 +5,12 @@ from __future__ import annotations
 import sys
 from dataclasses import dataclass
 
-BENCH_VERSION = 5  # 2: loop variants (recording, in-process), deliveries, start-up; 3: the recorder writing
+BENCH_VERSION = 6  # 2: loop variants (recording, in-process), deliveries, start-up; 3: the recorder writing
 # an .rrd and an .mcap (loops.multi_process_recording_both, loops.recording_both_cost, its target); 4: the
 # monolithic loop measured before each run of a variant (M A M B M C M D), no longer first and apart; 5: the
-# MuJoCo peer (mujoco: its loop beside the monolithic one, the engines' agreement; its target)
+# MuJoCo peer (mujoco: its loop beside the monolithic one, the engines' agreement; its target); 6: realtime paced by
+# the sim (lateness: each step's start after its deadline), 2 kHz (realtime_2khz), --cpu-latency runs, the
+# monolithic loop messaging as protocol 2 does (windows, blocks)
 
 
 @dataclass(frozen=True)
@@ -20,7 +22,8 @@ class BenchPlan:
     loop_duration: float | None  # sim seconds of the distributed run (None: the whole scenario)
     loop_repeats: int  # runs of each variant
     rtt_count: int  # timed round trips
-    realtime_duration: float  # sim seconds in realtime mode
+    realtime_duration: float  # sim seconds in realtime mode (1 kHz)
+    realtime_2khz_duration: float  # sim seconds of the 2 kHz realtime runs
     tda_sizes: tuple[int, ...]
     tda_calls: int  # solves per method and size
     session_counts: tuple[int, ...]
@@ -32,12 +35,12 @@ class BenchPlan:
 
 FULL = BenchPlan(
     mono_steps=11000, mono_repeats=1, loop_duration=None, loop_repeats=3, rtt_count=20000,
-    realtime_duration=60.0, tda_sizes=(4, 8, 12, 16), tda_calls=3000,
+    realtime_duration=60.0, realtime_2khz_duration=10.0, tda_sizes=(4, 8, 12, 16), tda_calls=3000,
     session_counts=(1, 2, 4, 8), session_duration=6.0, cable_counts=(4, 8, 12, 16), cable_duration=6.0,
 )
 QUICK = BenchPlan(
     mono_steps=2000, mono_repeats=1, loop_duration=4.0, loop_repeats=1, rtt_count=2000,
-    realtime_duration=3.0, tda_sizes=(4, 8, 16), tda_calls=400,
+    realtime_duration=3.0, realtime_2khz_duration=3.0, tda_sizes=(4, 8, 16), tda_calls=400,
     session_counts=(1, 2, 4), session_duration=3.0, cable_counts=(4, 16), cable_duration=3.0,
 )
 

@@ -12,8 +12,8 @@ import click
 import numpy as np
 
 from cdpr.errors import InputError
-from cdpr.runtime.options import RECORDER_OPTIONS, RT_PRIORITY, SESSION_OPTIONS
-from cdpr.tools.cli.group import cli, click_option, click_options, emit
+from cdpr.runtime.options import REALTIME_OPTIONS, RECORDER_OPTIONS, SESSION_OPTIONS
+from cdpr.tools.cli.group import cli, click_options, emit
 
 # ------------------------------------------------------------------------------------------------
 # Running sessions
@@ -24,7 +24,7 @@ def _scenario_options(f: Callable[..., Any]) -> Callable[..., Any]:
 
 
 def _rt_option(f: Callable[..., Any]) -> Callable[..., Any]:
-    return click_option(RT_PRIORITY)(f)
+    return click_options(REALTIME_OPTIONS)(f)
 
 
 def _load(scenario: str, duration: float | None) -> Any:
