@@ -315,3 +315,40 @@ def test_a_stop_signal_ends_the_inbox_wait_also_amid_other_signals(wake: str) ->
         # run says nothing about the need for Inbox.wake (the case above still checked the fix).
         pytest.skip("the CPython hang did not show in this run (a race outside the project)")
     # else: the process without the wake ignored SIGTERM — the bug that Inbox.wake works around is there
+
+
+class _Blocking(_Recorder):
+    """Its handler of ``hold`` waits until the test lets it go (a handler busy on another thread)."""
+
+    def __init__(self) -> None:
+        super().__init__()
+        self.entered, self.release = threading.Event(), threading.Event()
+
+    def handle(self, event: Event) -> None:
+        if event.key == "hold":
+            self.entered.set()
+            assert self.release.wait(30.0)
+        super().handle(event)
+
+
+def test_a_thread_never_waits_for_another_threads_handler_and_no_event_is_stranded() -> None:
+    """A delivery that finds another thread inside a handler leaves its event to that thread and returns at
+    once: Zenoh's receiving thread goes on receiving."""
+    node = _Blocking()
+    dispatch = _Dispatcher(node, node.handle, threading.Event(), StopFlag())
+    busy = threading.Thread(target=dispatch, args=(Event("x", b"", "hold", 0.0),), daemon=True)
+    busy.start()
+    assert node.entered.wait(30.0)
+    returned = threading.Event()
+    other = threading.Thread(target=lambda: (dispatch(Event("x", b"", "meanwhile", 0.0)), returned.set()),
+                             daemon=True)
+    other.start()
+    assert returned.wait(30.0), "a delivery waited for another thread's handler"
+    assert node.seen == []  # not handled yet: left to the busy thread
+    node.release.set()
+    busy.join(30.0)
+    assert not busy.is_alive()
+    assert node.seen == ["hold", "meanwhile"]  # in order, by the thread that was inside
+    node.done = True
+    dispatch(Event("x", b"", "after the end", 0.0))  # returns (nothing more is handled), and says so
+    assert node.seen == ["hold", "meanwhile"]

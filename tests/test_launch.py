@@ -8,6 +8,8 @@ import subprocess
 import time
 from pathlib import Path
 
+import pytest
+
 from conftest import CDPR, last_json_line, processes_mentioning
 
 LOOP = {"clock", "sim", "trajectory", "controller"}
@@ -66,3 +68,45 @@ def test_an_unknown_start_method_is_refused_in_one_line() -> None:
                           timeout=60, env=dict(os.environ, CDPR_START_METHOD="forkserver"))
     assert proc.returncode == 2
     assert proc.stderr.strip() == "cdpr: error: $CDPR_START_METHOD: fork or spawn, got 'forkserver'"
+
+
+def _cpu_latency_limit() -> int:
+    """The system-wide PM QoS CPU latency limit now (µs): what /dev/cpu_dma_latency reads."""
+    return int.from_bytes(Path("/dev/cpu_dma_latency").read_bytes()[:4], "little", signed=True)
+
+
+@pytest.mark.skipif(not os.access("/dev/cpu_dma_latency", os.W_OK), reason="needs write access to /dev/cpu_dma_latency")
+def test_cpu_latency_holds_the_limit_while_the_session_runs_and_not_after(session_id: str) -> None:
+    before = _cpu_latency_limit()
+    run = subprocess.Popen([*CDPR, "run", "caroca_15kg", "--duration", "2", "--mode", "realtime", "--cpu-latency",
+                            "0", "--quiet", "--session", session_id],
+                           stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    seen = []
+    try:
+        while run.poll() is None and 0 not in seen and len(seen) < 20_000:  # bounded: the session lasts 2 s+
+            seen.append(_cpu_latency_limit())
+            time.sleep(0.005)
+        out, err = run.communicate(timeout=120)
+    finally:
+        if run.poll() is None:
+            run.kill()
+            run.wait()
+    assert run.returncode == 0, err
+    assert 0 in seen  # held while the session ran
+    assert last_json_line(out)["steps"] == 2000
+    assert _cpu_latency_limit() == before  # and let go with the process
+
+
+def test_cpu_latency_without_access_says_what_it_needs(monkeypatch: pytest.MonkeyPatch) -> None:
+    from cdpr.errors import InputError
+    from cdpr.runtime import service
+
+    def refuse(path: str, flags: int) -> int:
+        raise PermissionError(13, "Permission denied", path)
+
+    monkeypatch.setattr(service.os, "open", refuse)
+    with pytest.raises(InputError, match=r"--cpu-latency: cannot open /dev/cpu_dma_latency \(Permission denied\): "
+                                         r"it needs root or write access to the device"):
+        service.hold_cpu_latency(0)
+    with pytest.raises(InputError, match="--cpu-latency: must be 0 or more microseconds"):
+        service.hold_cpu_latency(-1)

@@ -235,10 +235,13 @@ SPIN = 2e-4  # seconds before a deadline at which the main thread stops sleeping
 class _Dispatcher:
     """Runs a node's handlers one at a time, on whichever thread calls it (Zenoh's or the main one).
 
-    A lock serialises the threads. A call made while the same thread is already inside a handler (a
-    publication delivered synchronously to a subscriber of the same process) is queued and run right
-    after the current handler, never nested. The first exception stops the dispatcher and is kept
-    for the main thread to raise.
+    Every event goes into a queue first, and the thread that holds the lock handles the queue. A thread that
+    finds the lock taken leaves its event there and returns at once: Zenoh's receiving thread never waits for
+    another thread's handler (the main thread's chores, a deadline's step), it goes on receiving. A call made while the same thread is already inside a handler (a
+    publication delivered synchronously to a subscriber of the same process) is queued too and run right
+    after the current handler, never nested. A thread that releases the lock looks at the queue again, so
+    that an event left while it was releasing is not stranded. The first exception stops the dispatcher
+    and is kept for the main thread to raise.
     """
 
     def __init__(self, node: Node, on_event: Callable[[Event], None], wake: threading.Event,
@@ -248,39 +251,54 @@ class _Dispatcher:
         self._wake = wake
         self._stop = stop
         self._lock = threading.RLock()
-        self._busy = False
+        self._busy = False  # a thread is inside (read without the lock: see _pump)
         self._backlog: deque[Event] = deque()
         self.error: BaseException | None = None
         self.closed = False
 
     def __call__(self, event: Event) -> None:
-        """Handle one event, then let the node act on it (:meth:`Node.idle`)."""
-        with self._lock:
-            if self._busy:
-                self._backlog.append(event)
+        """Handle one event (or leave it to the thread handling events now), then let the node act on it
+        (:meth:`Node.idle`)."""
+        self._backlog.append(event)
+        self._pump()
+
+    def _pump(self) -> None:
+        """Handle the queue if no thread is inside (this one included); else leave it to that thread, which
+        looks at the queue again once it has released the lock. Nothing is handled once the node is done."""
+        while self._backlog and not self._busy:
+            if self._node.done:
+                self._wake.set()  # the main thread must notice the end
                 return
-            if self.closed or self._stop:  # after a signal, nothing more is handled
-                return
-            self._busy = True
+            if not self._lock.acquire(blocking=False):
+                return  # another thread is about to release it, and will look again
             try:
-                node = self._node
-                self._on_event(event)
-                while True:
-                    self._drain()
-                    now = time.monotonic()
-                    node.idle(now)  # which may publish to this very process: drained in the next turn
-                    if not self._backlog or node.done or self._stop:  # (after a signal nothing is drained)
-                        break
-                if node.done or node.timeout(now) < node.idle_period:
-                    self._wake.set()  # the main thread has a deadline to meet, or the end to handle
-            except BaseException as exc:
-                self.error, self.closed = exc, True
-                self._wake.set()
+                if self.closed or self._stop:  # after a signal, nothing more is handled
+                    self._backlog.clear()
+                    return
+                self._busy = True
+                self._handle()
             finally:
                 self._busy = False
+                self._lock.release()
+
+    def _handle(self) -> None:
+        node = self._node
+        try:
+            while True:
+                self._drain()
+                now = time.monotonic()
+                node.idle(now)  # which may publish to this very process: drained in the next turn
+                if not self._backlog or node.done or self._stop:  # (after a signal nothing is drained)
+                    break
+            if node.done or node.timeout(now) < node.idle_period:
+                self._wake.set()  # the main thread has a deadline to meet, or the end to handle
+        except BaseException as exc:
+            self.error, self.closed = exc, True
+            self._backlog.clear()
+            self._wake.set()
 
     def _drain(self) -> None:
-        """Handle the events queued while a handler ran (not after the end or a signal)."""
+        """Handle the queued events (not after the end or a signal)."""
         while self._backlog and not self._node.done and not self._stop:
             self._on_event(self._backlog.popleft())
 
@@ -293,12 +311,14 @@ class _Dispatcher:
             try:
                 fn()
                 self._drain()
-                return self._node.timeout(time.monotonic())
+                timeout = self._node.timeout(time.monotonic())
             except BaseException as exc:
                 self.error, self.closed = exc, True
                 return 0.0
             finally:
                 self._busy = False
+        self._pump()  # what came while the chores ran
+        return 0.0 if self.closed else timeout
 
     def close(self) -> None:
         with self._lock:

@@ -97,7 +97,11 @@ def isolated_config() -> zenoh.Config:
 # receives, routes and runs the subscribers' callbacks (rx, and the rarely used acceptor and
 # housekeeping pools, handed over to it), one transmits. Zenoh's default (two rx workers, plus app,
 # acc, net, tx) wakes several threads per message, which on a small machine costs more CPU than the
-# message itself. Transmission keeps its own thread: a callback's put() may wait for it.
+# message itself. Transmission keeps its own thread, which never needs Python's GIL: a put() waits for it
+# when the queue is full, perhaps holding the GIL that a callback on the receiving worker waits for.
+# (Handing transmission over to the receiving worker too was faster — 2 kHz realtime 95-96 -> 97-99 %
+# of the steps on time, fast mode +10 % — until exactly that happened: a free-running sim's put() of a
+# telemetry block through a router stalled the process until Zenoh closed the link, 5 s later.)
 ZENOH_RUNTIME = (
     "(rx: (handover: app), acc: (handover: app), net: (handover: app), "
     "app: (worker_threads: 1), tx: (worker_threads: 1))"
