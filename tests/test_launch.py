@@ -6,6 +6,7 @@ from __future__ import annotations
 import os
 import subprocess
 import time
+from collections.abc import Callable
 from pathlib import Path
 
 import pytest
@@ -15,32 +16,45 @@ from conftest import CDPR, last_json_line, processes_mentioning
 LOOP = {"clock", "sim", "trajectory", "controller"}
 
 
-def _run_and_look(session_id: str, method: str) -> tuple[dict, dict[str, tuple[str, str, int]], int]:
-    """A 3 s session; while it runs, each service's (comm, command line, parent pid)."""
-    env = dict(os.environ, CDPR_START_METHOD=method)
-    run = subprocess.Popen([*CDPR, "run", "caroca_15kg", "--duration", "3", "--session", session_id],
-                           stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=env)
-    seen: dict[str, tuple[str, str, int]] = {}
+def _while_running(args: list[str], look: Callable[[], bool], env: dict[str, str] | None = None,
+                   every: float = 0.05) -> tuple[str, int]:
+    """Run ``cdpr run ARGS``, calling ``look`` every ``every`` s while it runs until it returns True (at most
+    2 000 times); the summary line's stdout and the launcher's pid, once it has exited 0."""
+    run = subprocess.Popen([*CDPR, "run", *args], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+                           env=env)
     try:
-        deadline = time.monotonic() + 60
-        while set(seen) != LOOP and time.monotonic() < deadline and run.poll() is None:
-            for pid in processes_mentioning(f"--session {session_id}"):
-                try:
-                    cmdline = Path(f"/proc/{pid}/cmdline").read_bytes().replace(b"\0", b" ").decode().split()
-                    comm = Path(f"/proc/{pid}/comm").read_text().strip()
-                    ppid = int(Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()[1])
-                except (OSError, ValueError):
-                    continue
-                if "cdpr.runtime" in cmdline:
-                    seen[cmdline[cmdline.index("cdpr.runtime") + 1]] = (comm, " ".join(cmdline), ppid)
-            time.sleep(0.05)
+        for _ in range(2000):
+            if run.poll() is not None or look():
+                break
+            time.sleep(every)
         out, err = run.communicate(timeout=120)
     finally:
         if run.poll() is None:
             run.kill()
             run.wait()
     assert run.returncode == 0, err
-    return last_json_line(out), seen, run.pid
+    return out, run.pid
+
+
+def _run_and_look(session_id: str, method: str) -> tuple[dict, dict[str, tuple[str, str, int]], int]:
+    """A 3 s session; while it runs, each service's (comm, command line, parent pid)."""
+    env = dict(os.environ, CDPR_START_METHOD=method)
+    seen: dict[str, tuple[str, str, int]] = {}
+
+    def look() -> bool:
+        for pid in processes_mentioning(f"--session {session_id}"):
+            try:
+                cmdline = Path(f"/proc/{pid}/cmdline").read_bytes().replace(b"\0", b" ").decode().split()
+                comm = Path(f"/proc/{pid}/comm").read_text().strip()
+                ppid = int(Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()[1])
+            except (OSError, ValueError):
+                continue
+            if "cdpr.runtime" in cmdline:
+                seen[cmdline[cmdline.index("cdpr.runtime") + 1]] = (comm, " ".join(cmdline), ppid)
+        return set(seen) == LOOP
+
+    out, pid = _while_running(["caroca_15kg", "--duration", "3", "--session", session_id], look, env)
+    return last_json_line(out), seen, pid
 
 
 def test_forked_and_spawned_services_are_the_same_processes_with_the_same_states(session_id: str) -> None:
@@ -78,20 +92,14 @@ def _cpu_latency_limit() -> int:
 @pytest.mark.skipif(not os.access("/dev/cpu_dma_latency", os.W_OK), reason="needs write access to /dev/cpu_dma_latency")
 def test_cpu_latency_holds_the_limit_while_the_session_runs_and_not_after(session_id: str) -> None:
     before = _cpu_latency_limit()
-    run = subprocess.Popen([*CDPR, "run", "caroca_15kg", "--duration", "2", "--mode", "realtime", "--cpu-latency",
-                            "0", "--quiet", "--session", session_id],
-                           stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
-    seen = []
-    try:
-        while run.poll() is None and 0 not in seen and len(seen) < 20_000:  # bounded: the session lasts 2 s+
-            seen.append(_cpu_latency_limit())
-            time.sleep(0.005)
-        out, err = run.communicate(timeout=120)
-    finally:
-        if run.poll() is None:
-            run.kill()
-            run.wait()
-    assert run.returncode == 0, err
+    seen: list[int] = []
+
+    def look() -> bool:
+        seen.append(_cpu_latency_limit())
+        return seen[-1] == 0
+
+    out, _ = _while_running(["caroca_15kg", "--duration", "2", "--mode", "realtime", "--cpu-latency", "0", "--quiet",
+                             "--session", session_id], look, every=0.005)
     assert 0 in seen  # held while the session ran
     assert last_json_line(out)["steps"] == 2000
     assert _cpu_latency_limit() == before  # and let go with the process

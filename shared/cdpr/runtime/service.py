@@ -237,11 +237,11 @@ class _Dispatcher:
 
     Every event goes into a queue first, and the thread that holds the lock handles the queue. A thread that
     finds the lock taken leaves its event there and returns at once: Zenoh's receiving thread never waits for
-    another thread's handler (the main thread's chores, a deadline's step), it goes on receiving. A call made while the same thread is already inside a handler (a
-    publication delivered synchronously to a subscriber of the same process) is queued too and run right
-    after the current handler, never nested. A thread that releases the lock looks at the queue again, so
-    that an event left while it was releasing is not stranded. The first exception stops the dispatcher
-    and is kept for the main thread to raise.
+    another thread's handler (the main thread's chores, a deadline's step), it goes on receiving. A call
+    made while the same thread is already inside a handler (a publication delivered synchronously to a
+    subscriber of the same process) is queued too and run right after the current handler, never nested.
+    A thread that releases the lock looks at the queue again, so that an event left while it was releasing
+    is not stranded. The first exception stops the dispatcher and is kept for the main thread to raise.
     """
 
     def __init__(self, node: Node, on_event: Callable[[Event], None], wake: threading.Event,
