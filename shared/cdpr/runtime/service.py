@@ -192,13 +192,13 @@ _cpu_latency_requests: list[int] = []  # the open /dev/cpu_dma_latency: the limi
 
 
 def hold_cpu_latency(microseconds: int) -> None:
-    """Hold Linux's PM QoS CPU latency limit at ``microseconds`` for as long as this process lives (or until
-    :func:`release_cpu_latency`): the kernel keeps every CPU out of idle states slower to leave than that.
-    With 0 an idle CPU polls instead of halting, so the thread a message wakes runs at once instead of after
-    the CPU (in a virtual machine: the vCPU) comes back from sleep — tens of µs per hop, every step. The
-    setting of realtime Linux benchmarks (cyclictest) and of tuned's ``latency-performance`` profile; it costs
-    power (idle CPUs stay busy). Needs root, or write access to ``/dev/cpu_dma_latency`` (Docker: map the
-    device); otherwise an InputError saying so."""
+    """Hold Linux's PM QoS CPU latency limit at ``microseconds`` for as long as this process lives: the
+    kernel keeps every CPU out of idle states slower to leave than that. With 0 an idle CPU polls instead
+    of halting, so the thread a message wakes runs at once instead of after the CPU (in a virtual machine:
+    the vCPU) comes back from sleep — tens of µs per hop, every step. The setting of realtime Linux
+    benchmarks (cyclictest) and of tuned's ``latency-performance`` profile; it costs power (idle CPUs stay
+    busy). Needs root, or write access to ``/dev/cpu_dma_latency`` (Docker: map the device); otherwise an
+    InputError saying so."""
     if microseconds < 0:
         raise InputError(f"--cpu-latency: must be 0 or more microseconds, got {microseconds}")
     try:
@@ -208,12 +208,6 @@ def hold_cpu_latency(microseconds: int) -> None:
                          "write access to the device (docker: --device /dev/cpu_dma_latency)") from None
     os.write(fd, struct.pack("i", microseconds))
     _cpu_latency_requests.append(fd)
-
-
-def release_cpu_latency() -> None:
-    """Drop the limits :func:`hold_cpu_latency` holds (the kernel's default applies again)."""
-    while _cpu_latency_requests:
-        os.close(_cpu_latency_requests.pop())
 
 
 def _realtime_scheduled() -> bool:
