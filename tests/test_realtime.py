@@ -29,7 +29,7 @@ import yaml
 import zenoh
 
 from cdpr.config.scenario import load_scenario
-from cdpr.protocol import Keys, State, Telemetry
+from cdpr.protocol import Keys, State, Telemetry, Tick
 from cdpr.runtime.transport import zenoh_config
 from cdpr.tools.bench.loops import SleeperProbe
 from cdpr.tools.netdelay import DelayProxy
@@ -179,6 +179,45 @@ def test_free_running_through_a_1ms_link_keeps_the_wall_clock(session_id: str, t
         rms.append(det["rms_position_error"])
     low, high = min(rms), max(rms)
     assert 0.9 * low <= s["rms_position_error"] <= 1.1 * high, (s["rms_position_error"], rms)
+
+
+def test_lock_step_realtime_starts_every_step_at_its_deadline_never_before(session_id: str) -> None:
+    """The sim keeps the wall clock in lock-step realtime (no tick per step): every step after the handshake
+    reports its lateness once, none is negative (no step starts before its deadline), and so the session is
+    never faster than the wall clock; the clock's statistics come from those reports."""
+    endpoint = f"tcp/127.0.0.1:{free_port()}"
+    lateness: dict[int, float] = {}
+    ticks: list[Tick] = []
+    up = _up("caroca_15kg", session_id, endpoint, "--duration", "1", "--mode", "realtime")
+    ctrl = None
+    try:
+        with zenoh.open(zenoh_config("client", connect=[endpoint])) as z:
+            keys = Keys(session_id)
+
+            def on_block(sample: zenoh.Sample) -> None:
+                block = Telemetry.decode(sample.payload.to_bytes())
+                for cmd, late in zip(block.commands, block.lateness, strict=False):
+                    lateness.setdefault(cmd.step, late)
+
+            def on_tick(sample: zenoh.Sample) -> None:
+                ticks.append(Tick.decode(sample.payload.to_bytes()))
+
+            watch = [z.declare_subscriber(keys.telemetry, on_block), z.declare_subscriber(keys.tick, on_tick)]
+            ctrl = _controller("caroca_15kg", session_id, endpoint)  # joins after the watchers: the session starts
+            out, _ = _outcome(up, ctrl, 120)
+            for sub in watch:
+                sub.undeclare()
+    finally:
+        _kill(up, ctrl)
+    s = last_json_line(out)
+    assert s["exit_ok"] is True
+    assert s["steps"] == 1000
+    assert sorted(lateness) == list(range(1, 1000))  # step 0 is the handshake's
+    assert min(lateness.values()) >= 0.0
+    assert s["rtf"] <= 1.0 + 1e-3  # from state 1: never ahead of the wall clock
+    assert s["late_ticks"] == sum(late > 0.001 for late in lateness.values())
+    assert len(ticks) < 20  # windows, not a tick per step
+    assert all(t.paced for t in ticks if t.until >= 1)
 
 
 def test_lock_step_realtime_through_a_1ms_link_says_why_within_a_second(session_id: str) -> None:
