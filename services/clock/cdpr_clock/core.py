@@ -186,9 +186,9 @@ class ClockCore:
 
     def stats(self, now: float, exact: bool = True) -> dict[str, float | int]:
         """The run's statistics at ``now``. In realtime mode, with ``exact=False`` (the once-a-second
-        status), the lateness percentiles are recomputed only when the ticks issued since the last
-        time are half as many again: sorting a minute of ticks takes milliseconds, and while the clock
-        sorts it issues no tick. The counts, the maximum and the on-time fraction are always exact."""
+        status), the lateness percentiles are recomputed only when the steps reported since the last
+        time are half as many again: sorting a minute of steps takes milliseconds, and while the clock
+        sorts it grants nothing. The counts, the maximum and the on-time fraction are always exact."""
         wall = 0.0 if self.started_at is None else now - self.started_at - self.paused_time
         if self._paused_since is not None:
             wall -= now - self._paused_since

@@ -319,7 +319,7 @@ class ClockNode(Node):
                 return
             log(self.name, f"lock-step realtime is falling behind: {what}; the controller answers in {lag:.2f} ms "
                 f"(median) of dt = {dt_ms:g} ms, so the sim's steps are slow or start late (a loaded machine?): "
-                "try --rt-priority, --mode fast or a longer dt")
+                "try --rt-priority and --cpu-latency 0, --mode fast or a longer dt")
             return
         log(self.name, f"lock-step realtime is falling behind: {what} (dt = {dt_ms:g} ms): use --sync free or "
             "--mode fast")

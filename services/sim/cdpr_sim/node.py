@@ -89,7 +89,6 @@ class SimNode(Node):
         self.free = False  # free-running realtime: set by the first free tick
         self.base: float | None = None  # paced: the wall time (monotonic) at which step base_step is due
         self.base_step = 0
-        self.due: tuple[Command, float] | None = None  # paced lock-step: command, lag: waiting for the deadline
 
     def _new_hold(self) -> CommandHold[Command]:
         return CommandHold(self.watchdog.steps(self.scenario.dt))
@@ -223,38 +222,30 @@ class SimNode(Node):
         return self.base + (k - self.base_step) * self.scenario.dt
 
     def timeout(self, now: float) -> float:
-        if (not self.paced or self.base is None or self.step > self.allowed or self.step >= self.total_steps
-                or (not self.free and self.due is None)):
+        if not self.free or self.base is None or self.step > self.allowed or self.step >= self.total_steps:
             return self.idle_period
         return max(0.0, self.deadline(self.step) - now)
 
     def idle(self, now: float) -> None:
-        if not self.paced or self.base is None:
+        if not self.free or self.base is None:
             return
-        if self.due is not None:  # lock-step: a command that waited for its step's deadline
-            if now >= (deadline := self.deadline(self.step)):
-                (cmd, lag), self.due = self.due, None
-                self.integrate(cmd, now - deadline, lag)
-            return
-        while (self.free and self.step <= self.allowed and self.step < self.total_steps
-               and now >= self.deadline(self.step)):
+        while self.step <= self.allowed and self.step < self.total_steps and now >= self.deadline(self.step):
             self.integrate(None, now - self.deadline(self.step))
             now = time.monotonic()
 
     def take(self, cmd: Command) -> None:
         """Lock-step: step k's command is here and the step granted: integrate it now, or (realtime) at its
-        deadline if that is still to come."""
+        deadline if that is still to come — at most a step away (state k went out after step k − 1's
+        deadline), and the sim expects nothing else before it, so the thread that received the command
+        waits (no hand-off to another thread)."""
         if not self.paced or self.base is None:
             self.integrate(cmd, None)
             return
         now = time.monotonic()
         deadline = self.deadline(self.step)
-        lag, early = now - self.published_at, deadline - now
-        if early > self.scenario.dt:
-            self.due = (cmd, lag)  # (after a restart of the deadlines) the main thread integrates it then
-            return
-        if early > 0.0:  # at most a step: nothing else is due before it, so wait here (no thread hand-off)
-            sleep_precisely(early)
+        lag = now - self.published_at
+        if deadline > now:
+            sleep_precisely(deadline - now)
             now = time.monotonic()
         self.integrate(cmd, now - deadline, lag)
 
@@ -291,11 +282,8 @@ class SimNode(Node):
             self.warn("future_command",
                       f"dropped controller/command for step {cmd.step}: the sim is at step {self.step}")
             return
-        if self.step > self.allowed or self.due is not None:
-            if self.due is None:
-                self.pending = cmd  # the controller was quicker than the tick: wait for the clock
-            else:
-                self.count("stale_commands")  # a repeated answer while the first waits for its deadline
+        if self.step > self.allowed:
+            self.pending = cmd  # the controller was quicker than the tick: wait for the clock
             return
         if self.hold is not None:  # a command latency: this one acts later (or is lost)
             assert self.latency is not None

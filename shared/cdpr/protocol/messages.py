@@ -250,7 +250,7 @@ def _fast(decoder: msgspec.msgpack.Decoder[Any], payload: bytes | bytearray | me
 class Tick(msgspec.Struct, **_STRUCT):
     """``clock/tick``: steps ``step`` … ``until`` (times ``t`` … ``until·dt``) may be computed.
 
-    In fast mode a tick grants a window of steps; in realtime mode one step, at its deadline. ``resend``:
+    A tick grants a window of steps (in realtime mode marked ``paced``, at least 0.25 s ahead). ``resend``:
     the clock saw no progress (or a participant came back) and asks for the current state and the
     setpoints again, ``step`` then being the sim's current step. ``flush``: the clock will grant nothing
     more until it hears of progress, so the sim sends its telemetry once it has computed ``until``.
