@@ -293,9 +293,10 @@ class Tick(msgspec.Struct, **_STRUCT):
         if until < step:
             raise ProtocolError(f"until: must be >= step ({step}), got {until}")
         flags = [msg.get(name, False) for name in _TICK_FLAGS]
-        for name, flag in zip(_TICK_FLAGS, flags, strict=True):
-            if not isinstance(flag, bool):
-                raise ProtocolError(f"{name}: expected true/false, got {type(flag).__name__}")
+        if not all(isinstance(flag, bool) for flag in flags[:3]):
+            raise ProtocolError("resend, flush, free: expected true/false")  # (the line of protocol 2's first flags)
+        if not isinstance(flags[3], bool):
+            raise ProtocolError(f"paced: expected true/false, got {type(flags[3]).__name__}")
         return cls(step, _float(msg, "t"), until, *flags)
 
 
