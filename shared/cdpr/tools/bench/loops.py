@@ -54,7 +54,15 @@ def monolithic_steps(scenario: Scenario, steps: int, timers: dict[str, float] | 
     commands: list[Command] = []
     setpoints: tuple[Setpoint, ...] = ()
     timed = timers is not None
-    t0 = a = clock()
+    t0 = mark = clock()
+
+    def lap(part: str) -> None:
+        """The time since the last lap goes to ``part`` (only with ``timers``: a clock read per part)."""
+        nonlocal mark
+        now = clock()
+        parts[part] += now - mark
+        mark = now
+
     for k in range(steps):
         if k % MONOLITHIC_WINDOW == 0:  # the clock grants a window, the trajectory sends its setpoints
             until = min(steps, k + MONOLITHIC_WINDOW) - 1
@@ -62,52 +70,36 @@ def monolithic_steps(scenario: Scenario, steps: int, timers: dict[str, float] | 
             Tick.decode(tick)
             granted = Tick.decode(tick)
             if timed:
-                b = clock()
-                parts["messages"] += b - a
+                lap("messages")
             block = Setpoints(tuple(setpoint_at(j) for j in range(granted.step, granted.until + 1)))
             if timed:
-                a = clock()
-                parts["trajectory"] += a - b
+                lap("trajectory")
             setpoints = Setpoints.decode(block.encode()).items
             if timed:
-                b = clock()
-                parts["messages"] += b - a
-                a = b
+                lap("messages")
         st_msg = sim.message(0)
         if timed:
-            b = clock()
-            parts["sim"] += b - a
-            a = b
+            lap("sim")
         st = State.decode(st_msg.encode(), m)
         if timed:
-            b = clock()
-            parts["messages"] += b - a
-            a = b
+            lap("messages")
         result = core.step(st, setpoints[k % MONOLITHIC_WINDOW])
         if timed:
-            b = clock()
-            parts["controller"] += b - a
-            a = b
+            lap("controller")
         command = Command(st.step, st.t, tuple(result.tensions.tolist()), result.feasible, result.status)
         tensions = np.asarray(Command.decode(command.encode(), m).tensions)
         if timed:
-            b = clock()
-            parts["messages"] += b - a
-            a = b
+            lap("messages")
         sim.step(tensions)
         if timed:
-            b = clock()
-            parts["sim"] += b - a
-            a = b
+            lap("sim")
         states.append(st_msg)
         commands.append(command)
         if len(states) == TELEMETRY_EVERY or k == steps - 1:  # the sim's report, read by the clock
             Telemetry.decode(Telemetry(tuple(states), tuple(commands), (0.0,) * len(commands)).encode(), m)
             states, commands = [], []
             if timed:
-                b = clock()
-                parts["messages"] += b - a
-                a = b
+                lap("messages")
     elapsed = clock() - t0
     if timers is not None:
         for name, value in parts.items():
