@@ -12,7 +12,7 @@ import pytest
 
 ROOT = Path(__file__).resolve().parents[1]
 COMMON = ROOT / "shared" / "cdpr"
-SERVICES = ("sim", "controller", "trajectory", "clock", "recorder")
+SERVICES = ("sim", "controller", "trajectory", "clock", "recorder", "ros2")
 
 # The outside libraries each layer of the common package may import (at the top of a module or inside a
 # function); numpy everywhere. The tools import anything.

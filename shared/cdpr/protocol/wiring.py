@@ -58,6 +58,8 @@ WIRING: dict[str, NodeWiring] = {
     "trajectory": NodeWiring(subscribes=("tick",), publishes=("setpoints",)),
     "controller": NodeWiring(subscribes=("state", "setpoints"), publishes=("command",)),
     "recorder": NodeWiring(subscribes=("telemetry", "setpoints"), publishes=()),
+    # the session on ROS 2's wire (rmw_zenoh); "command" only while a ROS 2 controller is there (docs/ros2.md)
+    "ros2": NodeWiring(subscribes=("tick", "state", "setpoints", "sensors"), publishes=("command",)),
 }
 
 

@@ -90,6 +90,7 @@ def node_main(name: str, argv: Sequence[str] | None = None, before_serve: Callab
             raise InputError(f"--session: {exc}") from None
         conf = zenoh_config(args.zenoh_mode, args.connect, args.listen, args.zenoh_config, args.connect_timeout)
         node = cls.from_args(scenario, keys, args)
+        node.configure(conf)
         if args.rt_priority is not None:
             set_realtime_priority(args.rt_priority)  # before Zenoh's threads exist: they inherit it
         if args.cpu_latency is not None:

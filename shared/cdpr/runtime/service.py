@@ -96,6 +96,10 @@ class Node:
         ``cdpr bench``'s monolithic loop). Nodes whose work is only messaging have none."""
         raise NotImplementedError(f"the {cls.name} node has no pure core")
 
+    def configure(self, conf: zenoh.Config) -> None:
+        """Adjust the Zenoh config of the node's own process before its session opens (what a feature of the
+        node needs from Zenoh: the ros2 node's timestamps)."""
+
     def decode(self, event: Event, *args: Any) -> Any:
         """The event's message, decoded and checked as its topic says (``cdpr.protocol.wiring.TOPICS``; ``args``
         go to its ``decode``: the number of cables, …). A payload that fails is counted under the topic's

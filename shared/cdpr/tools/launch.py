@@ -313,6 +313,8 @@ class RunOptions:
     mcap: str | None = None
     foxglove: int | None = None
     foxglove_host: str = "127.0.0.1"
+    ros2: bool = False  # also run the ros2 node (the controller's role when the controller joins from elsewhere)
+    ros_namespace: str = "/cdpr"
 
     @property
     def recording(self) -> bool:
@@ -346,6 +348,10 @@ def node_argv(scenario: Scenario, opts: RunOptions, router: str) -> dict[str, li
         clock += ["--max-lateness", repr(opts.max_lateness)]
     argv = {"clock": [*loop, "--mode", opts.mode, "--expect", ",".join(expected), *clock]}
     argv.update({name: loop for name in ("sim", "trajectory", "controller") if name not in opts.without})
+    if opts.ros2:  # ROS 2 nodes join through the router (rmw_zenoh's peers connect to it): a client of it
+        observe = [] if "controller" in opts.without else ["--observe"]  # never a second controller
+        argv["ros2"] = [*session_args, "--zenoh-mode", "client", "--connect", router,
+                        "--ros-namespace", opts.ros_namespace, *observe]
     if opts.recording:
         # The recorder is a client of the router even among local peers: it takes a few blocks a second
         # (no hop to save), and the router declares its subscribers to every peer before it passes its
@@ -375,8 +381,8 @@ def run_session(scenario: Scenario, opts: RunOptions | None = None) -> int:
         keys = Keys(opts.session_id)
     except ValueError as exc:
         raise InputError(f"--session: {exc}") from None
-    if opts.in_process and (opts.without or opts.listen):
-        raise InputError("--in-process: every node runs in this process; --without/--listen need processes")
+    if opts.in_process and (opts.without or opts.listen or opts.ros2):
+        raise InputError("--in-process: every node runs in this process; --without/--listen/--ros2 need processes")
     listen_eps = opts.listen_endpoints()
     argv = node_argv(scenario, opts, local_endpoint(listen_eps[0]))
     if opts.rt_priority is not None:

@@ -53,6 +53,8 @@ _node_command("controller",
               "Run the controller service (feedback linearisation + tension distribution) for SCENARIO.")
 _node_command("clock", "Run the lock-step clock for SCENARIO (--help for its options).")
 _node_command("recorder", "Run the recorder: subscribes to the whole session and logs it to Rerun, MCAP, Foxglove.")
+_node_command("ros2", "Run the ros2 node: the session on ROS 2's wire (rmw_zenoh), a ROS 2 controller in the loop "
+              "(docs/ros2.md).")
 
 
 def _run_options(f: Callable[..., Any]) -> Callable[..., Any]:
@@ -117,6 +119,10 @@ def _leave(code: int, at_once: bool) -> NoReturn:
 @click.option("--rejoin-timeout", type=float, default=None,
               help="end the session (aborted) if a participant that left has not come back after this many "
                    "seconds (the clock's --rejoin-timeout: default 60, 0 for ever)")
+@click.option("--ros2", is_flag=True,
+              help="also run the ros2 node: the session's topics on ROS 2 (rmw_zenoh); with --without controller a "
+                   "ROS 2 node is the controller (docs/ros2.md)")
+@click.option("--ros-namespace", default="/cdpr", show_default=True, help="--ros2: the namespace of the topics")
 @click.option("--quiet", is_flag=True, help="no progress line")
 def up(**kw: Any) -> None:
     """Run the services of SCENARIO except --without ones, and wait for those to join over Zenoh."""

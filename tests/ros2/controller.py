@@ -1,0 +1,203 @@
+"""A ROS 2 controller of a cdpr session, written with zenoh-ros2-sdk only: no cdpr import.
+
+What a ROS 2 user would write against the topics of docs/ros2.md: it reads the robot from the latched
+``session_info``, subscribes to ``joint_states``, ``platform/pose``, ``platform/twist`` and
+``setpoint/{pose,twist,accel}``, and for each step computes the seed paper's feedback linearisation (eq. 6–7)
+with a minimum-2-norm tension distribution in the limits (eq. 8, by the closed-form method that clamps the
+worst cable and solves again), then publishes the tensions: ``joint_commands`` (JointState, stamped with the
+state's stamp) or, with ``--unstamped``, ``tension_commands`` (Float64MultiArray, as ros2_control's forward
+command controllers do). Runs until SIGTERM/SIGINT.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import signal
+import threading
+import time
+
+import numpy as np
+from zenoh_ros2_sdk import ROS2Publisher, ROS2Subscriber, ZenohSession, get_message_class
+from zenoh_ros2_sdk.qos import QosDurability, QosProfile
+
+GRAVITY = np.array([0.0, 0.0, -9.81])
+
+
+def quat_matrix(x: float, y: float, z: float, w: float) -> np.ndarray:
+    return np.array([
+        [1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w)],
+        [2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w)],
+        [2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)],
+    ])
+
+
+def rotation_error(qd: np.ndarray, q: np.ndarray) -> np.ndarray:
+    """log(q_d q⁻¹) as a rotation vector (world frame)."""
+    xd, yd, zd, wd = qd / np.linalg.norm(qd)
+    x, y, z, w = q / np.linalg.norm(q)
+    # q_d ⊗ conj(q)
+    ew = wd * w + xd * x + yd * y + zd * z
+    ex = -wd * x + xd * w - yd * z + zd * y
+    ey = -wd * y + yd * w - zd * x + xd * z
+    ez = -wd * z + zd * w - xd * y + yd * x
+    if ew < 0:
+        ew, ex, ey, ez = -ew, -ex, -ey, -ez
+    s = math.sqrt(ex * ex + ey * ey + ez * ez)
+    k = 2.0 if s < 1e-12 else 2.0 * math.atan2(s, ew) / s
+    return np.array([ex, ey, ez]) * k
+
+
+def distribute(W: np.ndarray, w: np.ndarray, tmin: float, tmax: float) -> np.ndarray:
+    """min ‖t‖₂ subject to W t = w, tmin ≤ t ≤ tmax: the minimum-norm solution of the free cables, the worst
+    violation clamped to its limit, again, until every cable is inside (or too few are left)."""
+    m = W.shape[1]
+    t = np.zeros(m)
+    free = np.ones(m, dtype=bool)
+    for _ in range(m):
+        rest = w - W[:, ~free] @ t[~free]
+        t[free] = np.linalg.pinv(W[:, free]) @ rest
+        low, high = tmin - t, t - tmax
+        worst = np.where(free, np.maximum(low, high), -np.inf)
+        i = int(np.argmax(worst))
+        if worst[i] <= 1e-9 or free.sum() <= W.shape[0]:
+            break
+        t[i] = tmin if low[i] > 0 else tmax
+        free[i] = False
+    return np.clip(t, tmin, tmax)
+
+
+class Law:
+    def __init__(self, info: dict) -> None:
+        robot = info["robot"]
+        self.frame = np.array(robot["frame_points"])
+        self.platform = np.array(robot["platform_points"])
+        self.mass = float(robot["mass"])
+        self.inertia = np.array(robot["inertia"])
+        self.tmin, self.tmax = robot["tension_limits"]
+        self.kp = np.array(info["controller"]["kp"], dtype=float)
+        self.kd = np.array(info["controller"]["kd"], dtype=float)
+        self.names = info["cables"]
+
+    def tensions(self, pose, twist, pose_d, twist_d, accel_d) -> np.ndarray:
+        p, q = pose[:3], pose[3:]
+        R = quat_matrix(*q)
+        e = np.concatenate([pose_d[:3] - p, rotation_error(pose_d[3:], q)])
+        acc = accel_d + self.kp * e + self.kd * (twist_d - twist)
+        inertia = R @ self.inertia @ R.T
+        omega = twist[3:]
+        wrench = np.concatenate([self.mass * (acc[:3] - GRAVITY),
+                                 inertia @ acc[3:] + np.cross(omega, inertia @ omega)])
+        b = self.platform @ R.T
+        d = self.frame - p - b
+        d /= np.linalg.norm(d, axis=1, keepdims=True)
+        W = np.vstack([d.T, np.cross(b, d).T])
+        return distribute(W, wrench, self.tmin, self.tmax)
+
+
+def vec(v) -> np.ndarray:
+    return np.array([v.x, v.y, v.z])
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser()
+    ap.add_argument("--namespace", default="/cdpr")
+    ap.add_argument("--router-port", type=int, default=7447)
+    ap.add_argument("--unstamped", action="store_true", help="tension_commands (Float64MultiArray)")
+    ap.add_argument("--node-name", default="pd_controller")
+    args = ap.parse_args()
+    ns, port, node = args.namespace.rstrip("/"), args.router_port, args.node_name
+    common = {"node_name": node, "router_port": port}
+    stop = threading.Event()
+    signal.signal(signal.SIGTERM, lambda *_: stop.set())
+    signal.signal(signal.SIGINT, lambda *_: stop.set())
+
+    got: dict[str, dict] = {}
+
+    def on_info(msg) -> None:
+        got.setdefault("info", json.loads(msg.data))
+
+    latched = QosProfile(durability=QosDurability.TRANSIENT_LOCAL, history_depth=1)
+    sub = ROS2Subscriber(f"{ns}/session_info", "std_msgs/msg/String", on_info, qos=latched, **common)
+    session = ZenohSession.get_instance().session
+    while "info" not in got and not stop.wait(0.2):  # the session's node may start after this one
+        # zenoh-ros2-sdk 0.1.8 looks for a transient-local publisher with its topic's inner '/' left unmangled
+        # (subscriber._discover_publishers): it never finds one of a nested topic. Ask the publication cache
+        # as rmw_zenoh's subscribers do, on the SDK's own session and with its own decoding.
+        for reply in session.get(f"{sub.keyexpr}/@adv/pub/**?_anyke;_max=1", timeout=2.0):
+            if reply.ok is not None:
+                sub._process_sample(reply.ok)
+    sub.close()
+    if stop.is_set():
+        return
+    law = Law(got["info"])
+    print(f"controller: robot {got['info']['robot']['name']} with {len(law.names)} cables", flush=True)
+
+    Header = get_message_class("std_msgs/msg/Header")
+    Time = get_message_class("builtin_interfaces/msg/Time")
+    if args.unstamped:
+        pub = ROS2Publisher(f"{ns}/tension_commands", "std_msgs/msg/Float64MultiArray", **common)
+        Layout = get_message_class("std_msgs/msg/MultiArrayLayout")
+        Dim = get_message_class("std_msgs/msg/MultiArrayDimension")
+    else:
+        pub = ROS2Publisher(f"{ns}/joint_commands", "sensor_msgs/msg/JointState", **common)
+
+    parts: dict[tuple[int, int], dict] = {}
+    lock = threading.Lock()
+    answered = [0]
+    needed = ("joint_states", "pose", "twist", "sp_pose", "sp_twist", "sp_accel")
+
+    def receive(name: str):
+        def callback(msg) -> None:
+            stamp = (msg.header.stamp.sec, msg.header.stamp.nanosec)
+            with lock:
+                step = parts.setdefault(stamp, {})
+                step[name] = msg
+                if len(step) < len(needed):
+                    return
+                del parts[stamp]
+                for old in [s for s in parts if s < stamp]:
+                    del parts[old]
+            pose = step["pose"].pose
+            sp = step["sp_pose"].pose
+            t = law.tensions(
+                np.concatenate([vec(pose.position), [pose.orientation.x, pose.orientation.y, pose.orientation.z,
+                                                     pose.orientation.w]]),
+                np.concatenate([vec(step["twist"].twist.linear), vec(step["twist"].twist.angular)]),
+                np.concatenate([vec(sp.position), [sp.orientation.x, sp.orientation.y, sp.orientation.z,
+                                                   sp.orientation.w]]),
+                np.concatenate([vec(step["sp_twist"].twist.linear), vec(step["sp_twist"].twist.angular)]),
+                np.concatenate([vec(step["sp_accel"].accel.linear), vec(step["sp_accel"].accel.angular)]))
+            if args.unstamped:
+                pub.publish(layout=Layout(dim=[Dim(label="cables", size=len(t), stride=len(t))], data_offset=0),
+                            data=t)
+            else:
+                pub.publish(header=Header(stamp=Time(sec=stamp[0], nanosec=stamp[1]), frame_id=""),
+                            name=list(law.names), position=np.zeros(0), velocity=np.zeros(0), effort=t)
+            answered[0] += 1
+        return callback
+
+    subs = [
+        ROS2Subscriber(f"{ns}/platform/pose", "geometry_msgs/msg/PoseStamped",
+                       receive("pose"), **common),
+        ROS2Subscriber(f"{ns}/platform/twist", "geometry_msgs/msg/TwistStamped", receive("twist"), **common),
+        ROS2Subscriber(f"{ns}/setpoint/pose", "geometry_msgs/msg/PoseStamped", receive("sp_pose"), **common),
+        ROS2Subscriber(f"{ns}/setpoint/twist", "geometry_msgs/msg/TwistStamped", receive("sp_twist"), **common),
+        ROS2Subscriber(f"{ns}/setpoint/accel", "geometry_msgs/msg/AccelStamped", receive("sp_accel"), **common),
+        # last: with it the session sees this process in the controller's role (docs/ros2.md)
+        ROS2Subscriber(f"{ns}/joint_states", "sensor_msgs/msg/JointState", receive("joint_states"), **common),
+    ]
+    print("controller: ready", flush=True)
+    started = time.monotonic()
+    while not stop.wait(0.5):
+        pass
+    for s in subs:
+        s.close()
+    pub.close()
+    ZenohSession.get_instance().close()
+    print(f"controller: answered {answered[0]} steps in {time.monotonic() - started:.1f} s", flush=True)
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,519 @@
+"""ROS 2 controllers in the loop (docs/ros2.md): the wire checked with rosbags (an independent CDR and RIHS01
+implementation), the node's step, and whole sessions whose controller is a separate process written with
+zenoh-ros2-sdk (a third party's implementation of rmw_zenoh's conventions), with no cdpr import."""
+
+from __future__ import annotations
+
+import contextlib
+import itertools
+import math
+import os
+import queue
+import signal
+import struct
+import subprocess
+import sys
+import time
+from collections.abc import Iterator
+from pathlib import Path
+
+import numpy as np
+import pytest
+import zenoh
+from hypothesis import given, settings
+from hypothesis import strategies as st
+from rosbags.typesys import Stores, get_typestore
+
+from cdpr.config.scenario import load_scenario
+from cdpr.protocol import Keys, Setpoint, State, Status
+from cdpr.ros2 import graph
+from cdpr.ros2 import messages as ros
+from cdpr.ros2.cdr import CdrError, stamp
+from cdpr_ros2.core import COMMANDS, PUBLISHED, Bridge, RosCommandError
+from conftest import CDPR, free_port, last_json_line
+from test_compose import Processes
+
+HERE = Path(__file__).resolve().parent
+CONTROLLER = HERE / "ros2" / "controller.py"
+STORE = get_typestore(Stores.ROS2_JAZZY)
+WAIT = 30.0  # seconds any single expected event may take (a bound, never a measurement)
+sys.path.insert(0, str(HERE / "ros2"))
+
+from msg_cache import make_cache  # noqa: E402  (tests/ros2: the zenoh-ros2-sdk side)
+
+
+def serialize(ros_type: str, **fields: object) -> bytes:
+    return bytes(STORE.serialize_cdr(STORE.types[ros_type](**fields), ros_type))
+
+
+def header(sec: int, nanosec: int, frame: str = "") -> object:
+    time_ = STORE.types["builtin_interfaces/msg/Time"](sec=sec, nanosec=nanosec)
+    return STORE.types["std_msgs/msg/Header"](stamp=time_, frame_id=frame)
+
+
+# --------------------------------------------------------------------------------------------------
+# The wire, against rosbags
+
+
+def test_type_hashes_are_the_rihs01_of_rosbags() -> None:
+    for ros_type, h in graph.TYPE_HASHES.items():
+        assert STORE.hash_rihs01(ros_type) == h, ros_type
+    for topic in (*PUBLISHED.values(), *COMMANDS.values()):
+        assert topic.ros_type in graph.TYPE_HASHES
+
+
+def _payloads() -> list[tuple[str, bytes, dict]]:
+    t = (12, 345_678_901)
+    pose, twist = (0.1, -0.2, 0.3, 0.0, 0.6, 0.0, 0.8), (1.0, 2.0, 3.0, 4.0, 5.0, 6.0)
+    return [
+        ("rosgraph_msgs/msg/Clock", ros.clock(t), {"clock.sec": 12, "clock.nanosec": 345_678_901}),
+        ("sensor_msgs/msg/JointState",
+         ros.joint_state(t, ["cable_1", "cable_2"], [1.5, 2.5], [0.1, -0.1], [30.0, 40.0]),
+         {"name": ["cable_1", "cable_2"], "position": [1.5, 2.5], "velocity": [0.1, -0.1], "effort": [30.0, 40.0]}),
+        ("sensor_msgs/msg/JointState", ros.joint_state(t, ["a"], [1.0], [], [2.0]), {"velocity": []}),
+        ("geometry_msgs/msg/PoseStamped", ros.pose_stamped(t, "world", pose),
+         {"header.frame_id": "world", "pose.position.y": -0.2, "pose.orientation.y": 0.6, "pose.orientation.w": 0.8}),
+        ("geometry_msgs/msg/TwistStamped", ros.twist_stamped(t, "world", twist),
+         {"twist.linear.z": 3.0, "twist.angular.x": 4.0}),
+        ("geometry_msgs/msg/AccelStamped", ros.accel_stamped(t, "world", twist),
+         {"accel.linear.x": 1.0, "accel.angular.z": 6.0}),
+        ("tf2_msgs/msg/TFMessage", ros.tf_message(t, "world", "platform", pose), {}),
+        ("sensor_msgs/msg/Imu", ros.imu(t, "platform", (0.1, 0.2, 0.3), (0.0, 0.0, 9.81)),
+         {"angular_velocity.y": 0.2, "linear_acceleration.z": 9.81, "orientation.w": 1.0}),
+        ("std_msgs/msg/String", ros.string('{"robot": "é"}'), {"data": '{"robot": "é"}'}),
+        ("std_msgs/msg/Float64MultiArray", ros.float64_array([1.0, 2.0, 3.0]), {"data": [1.0, 2.0, 3.0]}),
+    ]
+
+
+def _get(msg: object, path: str) -> object:
+    for part in path.split("."):
+        msg = getattr(msg, part)
+    return msg.tolist() if isinstance(msg, np.ndarray) else msg
+
+
+@pytest.mark.parametrize(("ros_type", "payload", "expected"), _payloads(),
+                         ids=lambda v: v if isinstance(v, str) else "")
+def test_every_message_is_the_cdr_rosbags_reads_and_writes(ros_type: str, payload: bytes, expected: dict) -> None:
+    assert payload[:4] == b"\x00\x01\x00\x00"  # CDR little-endian, no options
+    msg = STORE.deserialize_cdr(payload, ros_type)
+    for path, value in expected.items():
+        assert _get(msg, path) == value, path
+    if hasattr(msg, "header"):
+        assert (msg.header.stamp.sec, msg.header.stamp.nanosec) == (12, 345_678_901)
+    assert bytes(STORE.serialize_cdr(msg, ros_type)) == payload  # byte for byte what rosbags writes
+
+
+def test_tf_carries_world_to_platform() -> None:
+    msg = STORE.deserialize_cdr(ros.tf_message((1, 2), "world", "platform", (1, 2, 3, 0, 0, 0, 1)),
+                                "tf2_msgs/msg/TFMessage")
+    (tf,) = msg.transforms
+    assert (tf.header.frame_id, tf.child_frame_id) == ("world", "platform")
+    assert (tf.transform.translation.x, tf.transform.rotation.w) == (1.0, 1.0)
+
+
+def test_command_decoders_read_what_rosbags_writes() -> None:
+    js = serialize("sensor_msgs/msg/JointState", header=header(3, 4, "x"), name=["cable_2", "cable_1"],
+                   position=np.array([]), velocity=np.array([]), effort=np.array([5.0, 6.0]))
+    msg = ros.read_joint_state(js)
+    assert (msg.stamp, msg.frame_id, msg.name, msg.position, msg.effort) == ((3, 4), "x", ("cable_2", "cable_1"),
+                                                                           (), (5.0, 6.0))
+    layout = STORE.types["std_msgs/msg/MultiArrayLayout"](
+        dim=[STORE.types["std_msgs/msg/MultiArrayDimension"](label="cables", size=2, stride=2)], data_offset=0)
+    fa = serialize("std_msgs/msg/Float64MultiArray", layout=layout, data=np.array([7.0, 8.0]))
+    assert ros.read_float64_array(fa) == (7.0, 8.0)
+
+
+@settings(max_examples=400, deadline=None)
+@given(data=st.binary(max_size=200), cut=st.integers(0, 400))
+def test_a_bad_payload_raises_a_cdr_error_and_nothing_else(data: bytes, cut: int) -> None:
+    good = ros.joint_state((1, 2), ["cable_1"], [1.0], [], [2.0])
+    for payload in (data, b"\x00\x01\x00\x00" + data, good[:cut], good[:cut] + data):
+        for read in (ros.read_joint_state, ros.read_float64_array):
+            with contextlib.suppress(CdrError):  # anything else fails the test
+                read(payload)
+
+
+def test_stamps_are_the_nearest_nanosecond() -> None:
+    assert stamp(0.0) == (0, 0)
+    assert stamp(1.001) == (1, 1_000_000)
+    assert stamp(10999 * 0.001) == (10, 999_000_000)
+    assert stamp(2.9999999999) == (3, 0)
+
+
+def test_keys_tokens_and_attachment_are_rmw_zenohs() -> None:
+    assert graph.data_key(0, "/cdpr/joint_states", "sensor_msgs/msg/JointState") == (
+        "0/cdpr/joint_states/sensor_msgs::msg::dds_::JointState_/" + STORE.hash_rihs01("sensor_msgs/msg/JointState"))
+    node = graph.NodeName(7, "abc", 0, "/cdpr", "cdpr")
+    assert graph.node_token(node) == "@ros2_lv/7/abc/0/0/NN/%/%cdpr/cdpr"
+    tok = graph.endpoint_token(node, 3, "MP", "/cdpr/platform/pose", "geometry_msgs/msg/PoseStamped", graph.Qos())
+    assert tok.startswith("@ros2_lv/7/abc/0/3/MP/%/%cdpr/cdpr/%cdpr%platform%pose/"
+                          "geometry_msgs::msg::dds_::PoseStamped_/")
+    ep = graph.parse_token(tok)
+    assert ep is not None
+    assert (ep.kind, ep.namespace, ep.node, ep.topic) == ("MP", "/cdpr", "cdpr",
+                                                                              "/cdpr/platform/pose")
+    att = graph.attachment(5, 123, bytes(range(16)))
+    assert len(att) == 33
+    assert att[16] == 16
+    assert struct.unpack("<qq", att[:16]) == (5, 123)
+    assert graph.parse_attachment(att) == (5, 123, bytes(range(16)))
+
+
+# --------------------------------------------------------------------------------------------------
+# The node's step
+
+
+@pytest.fixture(scope="module")
+def scenario() -> object:
+    return load_scenario("caroca_15kg")
+
+
+def _state(k: int, m: int = 8) -> State:
+    return State(k, k * 0.001, (0.9, 0.9, 0.2, 0.0, 0.0, 0.0, 1.0), (0.1, 0.0, 0.0, 0.0, 0.0, 0.01),
+                 tuple(2.0 + i for i in range(m)), tuple(10.0 + i for i in range(m)))
+
+
+def _setpoint(k: int) -> Setpoint:
+    return Setpoint(k, k * 0.001, (0.9, 0.9, 0.2, 0.0, 0.0, 0.0, 1.0), (0.0,) * 6, (0.0,) * 6)
+
+
+def _joint_command(t: tuple[int, int], effort: list[float], names: list[str] | None = None,
+                   position: list[float] | None = None) -> bytes:
+    return ros.joint_state(t, names if names is not None else [f"cable_{i + 1}" for i in range(8)],
+                           position or [], [], effort)
+
+
+def test_a_step_is_every_topic_stamped_with_the_state_time(scenario: object) -> None:
+    bridge = Bridge(scenario)  # type: ignore[arg-type]
+    out = dict(bridge.step_messages(_state(1234), _setpoint(1234)))
+    assert set(out) == {"clock", "joint_states", "pose", "twist", "tf", "setpoint_pose", "setpoint_twist",
+                        "setpoint_accel"}
+    assert STORE.deserialize_cdr(out["clock"], "rosgraph_msgs/msg/Clock").clock.nanosec == 234_000_000
+    js = STORE.deserialize_cdr(out["joint_states"], "sensor_msgs/msg/JointState")
+    assert js.name == [f"cable_{i}" for i in range(1, 9)]
+    assert js.position.tolist() == list(_state(0).cable_lengths)
+    assert js.effort.tolist() == list(_state(0).tensions)
+    # velocity: the length rates J v of the ideal cables, against a finite difference of the lengths
+    from cdpr.mechanics.kinematics import inverse_kinematics
+    from cdpr.mechanics.rotation import rotvec_to_matrix
+    robot = bridge.robot
+    p, v, w, h = np.array([0.9, 0.9, 0.2]), np.array([0.1, 0.0, 0.0]), np.array([0.0, 0.0, 0.01]), 1e-6
+    ahead = inverse_kinematics(robot, p + h * v, rotvec_to_matrix(h * w)).lengths
+    behind = inverse_kinematics(robot, p - h * v, rotvec_to_matrix(-h * w)).lengths
+    np.testing.assert_allclose(js.velocity, (ahead - behind) / (2 * h), atol=1e-8)
+
+
+def test_a_stamped_command_answers_the_state_with_its_stamp(scenario: object) -> None:
+    bridge = Bridge(scenario)  # type: ignore[arg-type]
+    bridge.step_messages(_state(5), _setpoint(5))
+    cmd = bridge.command("joint_commands", _joint_command(stamp(0.005), [float(i) for i in range(8)]))
+    assert (cmd.step, cmd.tensions) == (5, tuple(float(i) for i in range(8)))
+    with pytest.raises(RosCommandError, match=r"header.stamp 0.005000000: no state awaiting") as err:
+        bridge.command("joint_commands", _joint_command(stamp(0.005), [1.0] * 8))  # answered already
+    assert err.value.counter == "unmatched_ros2_commands"
+
+
+def test_joint_names_may_come_in_any_order(scenario: object) -> None:
+    bridge = Bridge(scenario)  # type: ignore[arg-type]
+    bridge.step_messages(_state(1), _setpoint(1))
+    names = [f"cable_{i}" for i in range(8, 0, -1)]
+    cmd = bridge.command("joint_commands", _joint_command(stamp(0.001), [float(i) for i in range(8, 0, -1)], names))
+    assert cmd.tensions == tuple(float(i) for i in range(1, 9))
+
+
+def test_an_unstamped_command_answers_the_oldest_state_or_free_running_the_newest(scenario: object) -> None:
+    bridge = Bridge(scenario)  # type: ignore[arg-type]
+    for k in (1, 2, 3):
+        bridge.step_messages(_state(k), _setpoint(k))
+    assert bridge.command("tension_commands", ros.float64_array([1.0] * 8)).step == 1
+    assert bridge.command("tension_commands", ros.float64_array([1.0] * 8)).step == 2
+    bridge.free = True
+    for k in (4, 5):
+        bridge.step_messages(_state(k), _setpoint(k))
+    assert bridge.command("tension_commands", ros.float64_array([1.0] * 8)).step == 5
+    with pytest.raises(RosCommandError, match="no state awaits a command"):
+        bridge.command("tension_commands", ros.float64_array([1.0] * 8))
+
+
+@pytest.mark.parametrize(("topic", "payload", "message", "counter"), [
+    ("joint_commands", _joint_command(stamp(0.001), [1.0] * 7),
+     r"JointState.effort: 7 values, expected 8", "bad_ros2_commands"),
+    ("joint_commands", _joint_command(stamp(0.001), [1.0] * 7 + [math.nan]),
+     r"JointState.effort\[7\]: nan is not a finite number", "bad_ros2_commands"),
+    ("joint_commands", _joint_command(stamp(0.001), [1.0] * 8, ["cable_1"] * 8),
+     r"JointState.name: .* are not the cables", "bad_ros2_commands"),
+    ("joint_commands", _joint_command(stamp(0.0015), [1.0] * 8), r"header.stamp 0.001500000",
+     "unmatched_ros2_commands"),
+    ("joint_commands", b'{"tensions": [1, 2]}', r"JointState: not little-endian CDR", "bad_ros2_commands"),
+    ("joint_commands", ros.float64_array([1.0] * 8), r"JointState\.", "bad_ros2_commands"),
+    ("tension_commands", ros.float64_array([1.0] * 9), r"Float64MultiArray.data: 9 values, expected 8",
+     "bad_ros2_commands"),
+    ("tension_commands", ros.float64_array([math.inf] * 8), r"Float64MultiArray.data\[0\]: inf", "bad_ros2_commands"),
+    ("tension_commands", b"\x00\x01", r"Float64MultiArray: not CDR", "bad_ros2_commands"),
+])
+def test_bad_commands_are_refused_naming_the_field(scenario: object, topic: str, payload: bytes, message: str,
+                                                   counter: str) -> None:
+    bridge = Bridge(scenario)  # type: ignore[arg-type]
+    bridge.step_messages(_state(1), _setpoint(1))
+    with pytest.raises(RosCommandError, match=message) as err:
+        bridge.command(topic, payload)
+    assert err.value.counter == counter
+    assert len(bridge.pending) == 1  # still awaiting its command
+
+
+def test_a_winch_session_takes_unstretched_lengths_as_positions() -> None:
+    bridge = Bridge(load_scenario("caroca_15kg_winch"))
+    bridge.step_messages(_state(1), _setpoint(1))
+    cmd = bridge.command("joint_commands", _joint_command(stamp(0.001), [], position=[3.0] * 8))
+    assert (cmd.lengths, cmd.tensions) == ((3.0,) * 8, ())
+    bridge.step_messages(_state(2), _setpoint(2))
+    with pytest.raises(RosCommandError, match="must be > 0"):
+        bridge.command("joint_commands", _joint_command(stamp(0.002), [], position=[0.0] * 8))
+
+
+# --------------------------------------------------------------------------------------------------
+# Whole sessions: the controller a separate process written with zenoh-ros2-sdk (no cdpr import)
+
+
+@pytest.fixture(scope="module")
+def sdk_env(tmp_path_factory: pytest.TempPathFactory) -> dict[str, str]:
+    """The environment of a zenoh-ros2-sdk process: its message cache offline (no git clone from GitHub), and a
+    git configuration of its own (the SDK marks its cache as a git safe.directory in the global one)."""
+    root = tmp_path_factory.mktemp("ros2")
+    env = {**os.environ, "ZENOH_ROS2_SDK_CACHE": str(make_cache(root / "cache")),
+           "GIT_CONFIG_GLOBAL": str(root / "gitconfig"), "ROS_DOMAIN_ID": "0"}
+    (root / "gitconfig").write_text("")
+    return env
+
+
+class Session:
+    """``cdpr up SCENARIO --without controller --ros2`` on a port of its own, ROS 2 controllers beside it, and a
+    plain Zenoh client of the session's router watching ``clock/status``."""
+
+    def __init__(self, tmp: Path, env: dict[str, str], session_id: str) -> None:
+        self.tmp, self.env, self.sid = tmp, env, session_id
+        self.port = free_port()
+        self.procs = Processes()
+        self.statuses: queue.Queue[Status] = queue.Queue()
+        self.zenoh: zenoh.Session | None = None
+        self.up: subprocess.Popen[bytes] | None = None
+
+    def start(self, scenario: str, duration: float | None = None, *extra: str) -> None:
+        args = [*CDPR, "up", scenario, "--without", "controller", "--ros2", "--session", self.sid, "--quiet",
+                "--listen", f"tcp/127.0.0.1:{self.port}", *extra]
+        if duration is not None:
+            args += ["--duration", str(duration)]
+        self.stdout = (self.tmp / "up.out").open("wb")
+        self.stderr = self.tmp / "up.err"
+        self.up = subprocess.Popen(args, stdout=self.stdout, stderr=self.stderr.open("wb"), env=self.env)
+        conf = zenoh.Config()
+        conf.insert_json5("mode", '"client"')
+        conf.insert_json5("connect/endpoints", f'["tcp/127.0.0.1:{self.port}"]')
+        conf.insert_json5("connect/timeout_ms", '{"client": 20000}')
+        self.zenoh = zenoh.open(conf)
+        self.zenoh.declare_subscriber(Keys(self.sid).status, lambda s: self.statuses.put(Status.decode(
+            s.payload.to_bytes())))
+
+    def controller(self, name: str, *args: str) -> subprocess.Popen[bytes]:
+        log = self.tmp / f"{name}.log"
+        f = log.open("wb")
+        self.procs._files.append(f)
+        self.procs.logs[name] = log
+        p = subprocess.Popen([sys.executable, str(CONTROLLER), "--router-port", str(self.port), *args], cwd=self.tmp,
+                             stdout=f, stderr=subprocess.STDOUT, env=self.env)
+        self.procs.procs[name] = p
+        return p
+
+    def _check_controllers(self) -> None:
+        for name, p in self.procs.procs.items():
+            if p.poll() not in (None, 0, -signal.SIGKILL):
+                raise AssertionError(f"the ROS 2 controller {name} exited with code {p.poll()}:\n"
+                                     f"{self.procs.log(name)[-3000:]}")
+
+    def wait_status(self, ok: object, what: str, timeout: float = WAIT) -> Status:
+        deadline = time.monotonic() + timeout
+        while time.monotonic() < deadline:
+            try:
+                status = self.statuses.get(timeout=0.2)
+            except queue.Empty:
+                self._check_controllers()
+                continue
+            if ok(status):  # type: ignore[operator]
+                return status
+        raise AssertionError(f"no clock/status with {what} within {timeout:g} s\n{self.stderr.read_text()[-3000:]}")
+
+    def summary(self, timeout: float = 300.0) -> dict:
+        assert self.up is not None
+        deadline = time.monotonic() + timeout
+        while self.up.poll() is None:
+            self._check_controllers()
+            if time.monotonic() > deadline:
+                self.up.kill()
+                raise AssertionError(f"cdpr up did not end\n{self.stderr.read_text()[-3000:]}")
+            time.sleep(0.1)
+        self.stdout.flush()
+        return last_json_line((self.tmp / "up.out").read_text())
+
+    def close(self) -> None:
+        if self.up is not None and self.up.poll() is None:
+            self.up.send_signal(signal.SIGTERM)
+            try:
+                self.up.wait(timeout=20)
+            except subprocess.TimeoutExpired:
+                self.up.kill()
+        self.procs.close()
+        if self.zenoh is not None:
+            self.zenoh.close()
+
+
+@pytest.fixture
+def ros2_session(tmp_path: Path, sdk_env: dict[str, str], session_id: str) -> Iterator[Session]:
+    s = Session(tmp_path, sdk_env, session_id)
+    try:
+        yield s
+    finally:
+        s.close()
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("unstamped", [False, True], ids=["joint_commands", "tension_commands"])
+def test_a_ros2_controller_runs_caroca_15kg_to_the_end(ros2_session: Session, unstamped: bool) -> None:
+    ros2_session.start("caroca_15kg")
+    ctl = ros2_session.controller("controller", *(["--unstamped"] if unstamped else []))
+    s = ros2_session.summary()
+    assert s["exit_ok"], s
+    assert s["steps"] == s["total_steps"] == 11000
+    assert s["rms_position_error"] <= 1e-3  # the issue's bar; it is ~3e-5 m (feedback linearisation, exact model)
+    assert not s["faults"], s["faults"]
+    ctl.send_signal(signal.SIGTERM)
+    assert ctl.wait(timeout=WAIT) == 0, ros2_session.procs.log("controller")[-2000:]
+    assert "controller: answered 11000 steps" in ros2_session.procs.log("controller")
+
+
+@pytest.mark.slow
+def test_every_topic_on_the_wire_is_what_rosbags_reads(ros2_session: Session) -> None:
+    """Each topic's key (DDS type name, RIHS01 hash from rosbags), encapsulation header, attachment (33 bytes:
+    sequence from 1, timestamp, GID) and stamps: /clock is the state's t, and never goes back."""
+    samples: list[tuple[str, bytes, bytes]] = []
+    states: list[State] = []
+    ros2_session.start(str(HERE / "scenarios" / "caroca_15kg_sensors.yaml"), 0.3)
+    z = ros2_session.zenoh
+    assert z is not None
+    keep = [
+        z.declare_subscriber("0/**", lambda s: samples.append(
+            (str(s.key_expr), s.payload.to_bytes(), b"" if s.attachment is None else s.attachment.to_bytes()))),
+        z.declare_subscriber(Keys(ros2_session.sid).state, lambda s: states.append(State.decode(s.payload.to_bytes()))),
+    ]
+    # the session's only controller is ours: it waits for it, so nothing is missed by subscribing first
+    ros2_session.controller("controller")
+    s = ros2_session.summary()
+    assert s["exit_ok"], s
+    time.sleep(0.5)  # deliveries still on their way to this session's callbacks (all sent: the session ended)
+    del keep
+    types = {graph.qualify("/cdpr", t.name): t.ros_type for t in PUBLISHED.values()}
+    commands = {graph.qualify("/cdpr", t.name) for t in COMMANDS.values()}
+    by_topic: dict[str, list[tuple[object, tuple[int, int, bytes]]]] = {}
+    for key, payload, att in samples:
+        domain, *topic, dds, type_hash = key.split("/")
+        name = "/" + "/".join(topic)
+        if name in commands:
+            continue  # the controller's own
+        ros_type = types[name]
+        assert (domain, dds, type_hash) == ("0", graph.dds_type(ros_type), STORE.hash_rihs01(ros_type)), key
+        assert payload[:4] == b"\x00\x01\x00\x00", key
+        assert len(att) == 33, key
+        by_topic.setdefault(name, []).append((STORE.deserialize_cdr(payload, ros_type), graph.parse_attachment(att)))
+    assert set(by_topic) == set(types) - {"/cdpr/session_info"}  # latched: published before we subscribed
+    for name, got in by_topic.items():
+        seqs = [a[0] for _, a in got]
+        assert seqs == list(range(seqs[0], seqs[0] + len(seqs))), name  # every one, in order
+        assert len({a[2] for _, a in got}) == 1, name  # one publisher GID
+        assert all(abs(a[1] - time.time_ns()) < 600e9 for _, a in got), name  # source timestamps: now (ns)
+    ts = {stamp(st.t) for st in states}
+    clocks = [(m.clock.sec, m.clock.nanosec) for m, _ in by_topic["/clock"]]
+    assert set(clocks) == ts  # /clock is the state's t, every step
+    distinct = [c for i, c in enumerate(clocks) if i == 0 or c != clocks[i - 1]]
+    assert distinct == sorted(ts)  # never going back (a step the clock asked again is stamped the same)
+    for name in ("/cdpr/joint_states", "/cdpr/platform/pose", "/cdpr/platform/twist", "/cdpr/setpoint/pose",
+                 "/cdpr/imu", "/cdpr/sensors/joint_states", "/tf"):
+        stamps = [(h.stamp.sec, h.stamp.nanosec) for h in (
+            (m.transforms[0].header if name == "/tf" else m.header) for m, _ in by_topic[name])]
+        assert all(a < b for a, b in itertools.pairwise(stamps) if a != b), name
+        assert set(stamps) <= ts | {stamp(st.t + 0.001) for st in states}, name
+    state_by_stamp = {stamp(st.t): st for st in states}
+    for m, _ in by_topic["/cdpr/joint_states"]:
+        st = state_by_stamp[(m.header.stamp.sec, m.header.stamp.nanosec)]
+        assert m.position.tolist() == list(st.cable_lengths)
+        assert m.effort.tolist() == list(st.tensions)
+    for m, _ in by_topic["/cdpr/platform/pose"]:
+        st = state_by_stamp[(m.header.stamp.sec, m.header.stamp.nanosec)]
+        p, q = m.pose.position, m.pose.orientation
+        assert (p.x, p.y, p.z, q.x, q.y, q.z, q.w) == st.pose
+        assert m.header.frame_id == "world"
+    imu = by_topic["/cdpr/imu"][0][0]
+    assert imu.header.frame_id == "platform"
+    assert imu.orientation_covariance[0] == -1.0  # no orientation estimate
+    assert 9.0 < imu.linear_acceleration.z < 10.6  # specific force at rest, platform frame
+    info = [r.ok for r in z.get("0/cdpr/session_info/**/@adv/pub/**?_anyke", timeout=5.0) if r.ok is not None]
+    if info:  # the session has ended: its node (and cache) may be gone already
+        text = STORE.deserialize_cdr(info[0].payload.to_bytes(), "std_msgs/msg/String").data
+        assert '"cables": ["cable_1"' in text
+
+
+def _tokens(z: zenoh.Session) -> list[str]:
+    return [str(r.ok.key_expr) for r in z.liveliness().get("@ros2_lv/0/**", timeout=5.0) if r.ok is not None]
+
+
+@pytest.mark.slow
+def test_the_graph_the_wait_the_pause_and_bad_commands(ros2_session: Session) -> None:
+    """The node and its endpoints in the ROS 2 graph (names mangled as rmw_zenoh does); the session waits for a
+    ROS 2 controller, pauses when its process is killed, resumes when it is restarted and finishes; bad ROS 2
+    commands meanwhile are dropped and counted."""
+    ros2_session.start("caroca_15kg", 3.0)
+    z = ros2_session.zenoh
+    assert z is not None
+    expected = {f"MP/%/%cdpr/cdpr/{graph.mangle(graph.qualify('/cdpr', t.name))}/{graph.dds_type(t.ros_type)}/"
+                f"{graph.TYPE_HASHES[t.ros_type]}" for t in PUBLISHED.values()}
+    expected |= {f"MS/%/%cdpr/cdpr/{graph.mangle(graph.qualify('/cdpr', t.name))}/{graph.dds_type(t.ros_type)}/"
+                 f"{graph.TYPE_HASHES[t.ros_type]}" for t in COMMANDS.values()}
+    deadline = time.monotonic() + WAIT
+    while time.monotonic() < deadline:
+        tokens = _tokens(z)
+        ends = {"/".join(k.split("/")[5:12]) for k in tokens}
+        if expected <= ends and any(k.endswith("/NN/%/%cdpr/cdpr") for k in tokens):
+            break
+        time.sleep(0.1)
+    else:
+        raise AssertionError(f"the ros2 node's tokens are not all there: {sorted(expected - ends)}")
+    assert "%cdpr%setpoint%accel" in " ".join(tokens)
+    assert "/%tf/" in " ".join(tokens)
+    status = ros2_session.wait_status(lambda s: s.state == "waiting" and "controller" in s.missing,
+                                      "the session waiting for its controller")
+    assert status.step == 0
+
+    ros2_session.controller("first")
+    ros2_session.wait_status(lambda s: s.state == "running" and s.step > 300, "the session running")
+    ros2_session.procs.stop("first", signal.SIGKILL)
+    paused = ros2_session.wait_status(lambda s: s.state == "paused" and "controller" in s.missing, "a pause")
+    assert paused.step < 3000
+
+    ros2_session.controller("second")
+    ros2_session.wait_status(lambda s: s.state == "running" and s.step > paused.step, "the session resumed")
+    bad = {
+        "tension_commands": [ros.float64_array([1.0] * 9), ros.float64_array([math.nan] * 8)],
+        "joint_commands": [b"not cdr at all", ros.joint_state((999, 0), [], [], [], [1.0] * 8)],
+    }
+    for topic, payloads in bad.items():
+        ros_type = COMMANDS[topic].ros_type
+        pub = z.declare_publisher(graph.data_key(0, f"/cdpr/{topic}", ros_type))
+        for i, payload in enumerate(payloads):
+            pub.put(payload, attachment=graph.attachment(i + 1, time.time_ns(), b"\x01" * 16))
+        pub.undeclare()
+    s = ros2_session.summary()
+    assert s["exit_ok"], s
+    assert s["steps"] == 3000
+    assert s["rms_position_error"] <= 1e-3
+    assert s["faults"].get("ros2") == {"bad_ros2_commands": 3, "unmatched_ros2_commands": 1}, s["faults"]
+    log = ros2_session.stderr.read_text()
+    assert "[ros2] dropped a bad /cdpr/tension_commands message: Float64MultiArray.data: 9 values, expected 8" in log
+    assert "[ros2] the ROS 2 controller left: the session waits for it" in log
