@@ -184,7 +184,7 @@ def _joint_command(t: tuple[int, int], effort: list[float], names: list[str] | N
 
 
 def test_a_step_is_every_topic_stamped_with_the_state_time(scenario: object) -> None:
-    bridge = Bridge(scenario)  # type: ignore[arg-type]
+    bridge = Bridge.from_scenario(scenario)  # type: ignore[arg-type]
     out = dict(bridge.step_messages(_state(1234), _setpoint(1234)))
     assert set(out) == {"clock", "joint_states", "pose", "twist", "tf", "setpoint_pose", "setpoint_twist",
                         "setpoint_accel"}
@@ -204,7 +204,7 @@ def test_a_step_is_every_topic_stamped_with_the_state_time(scenario: object) -> 
 
 
 def test_a_stamped_command_answers_the_state_with_its_stamp(scenario: object) -> None:
-    bridge = Bridge(scenario)  # type: ignore[arg-type]
+    bridge = Bridge.from_scenario(scenario)  # type: ignore[arg-type]
     bridge.step_messages(_state(5), _setpoint(5))
     cmd = bridge.command("joint_commands", _joint_command(stamp(0.005), [float(i) for i in range(8)]))
     assert (cmd.step, cmd.tensions) == (5, tuple(float(i) for i in range(8)))
@@ -214,7 +214,7 @@ def test_a_stamped_command_answers_the_state_with_its_stamp(scenario: object) ->
 
 
 def test_joint_names_may_come_in_any_order(scenario: object) -> None:
-    bridge = Bridge(scenario)  # type: ignore[arg-type]
+    bridge = Bridge.from_scenario(scenario)  # type: ignore[arg-type]
     bridge.step_messages(_state(1), _setpoint(1))
     names = [f"cable_{i}" for i in range(8, 0, -1)]
     cmd = bridge.command("joint_commands", _joint_command(stamp(0.001), [float(i) for i in range(8, 0, -1)], names))
@@ -222,7 +222,7 @@ def test_joint_names_may_come_in_any_order(scenario: object) -> None:
 
 
 def test_an_unstamped_command_answers_the_oldest_state_or_free_running_the_newest(scenario: object) -> None:
-    bridge = Bridge(scenario)  # type: ignore[arg-type]
+    bridge = Bridge.from_scenario(scenario)  # type: ignore[arg-type]
     for k in (1, 2, 3):
         bridge.step_messages(_state(k), _setpoint(k))
     assert bridge.command("tension_commands", ros.float64_array([1.0] * 8)).step == 1
@@ -253,7 +253,7 @@ def test_an_unstamped_command_answers_the_oldest_state_or_free_running_the_newes
 ])
 def test_bad_commands_are_refused_naming_the_field(scenario: object, topic: str, payload: bytes, message: str,
                                                    counter: str) -> None:
-    bridge = Bridge(scenario)  # type: ignore[arg-type]
+    bridge = Bridge.from_scenario(scenario)  # type: ignore[arg-type]
     bridge.step_messages(_state(1), _setpoint(1))
     with pytest.raises(RosCommandError, match=message) as err:
         bridge.command(topic, payload)
@@ -262,7 +262,7 @@ def test_bad_commands_are_refused_naming_the_field(scenario: object, topic: str,
 
 
 def test_a_winch_session_takes_unstretched_lengths_as_positions() -> None:
-    bridge = Bridge(load_scenario("caroca_15kg_winch"))
+    bridge = Bridge.from_scenario(load_scenario("caroca_15kg_winch"))
     bridge.step_messages(_state(1), _setpoint(1))
     cmd = bridge.command("joint_commands", _joint_command(stamp(0.001), [], position=[3.0] * 8))
     assert (cmd.lengths, cmd.tensions) == ((3.0,) * 8, ())
@@ -517,3 +517,66 @@ def test_the_graph_the_wait_the_pause_and_bad_commands(ros2_session: Session) ->
     log = ros2_session.stderr.read_text()
     assert "[ros2] dropped a bad /cdpr/tension_commands message: Float64MultiArray.data: 9 values, expected 8" in log
     assert "[ros2] the ROS 2 controller left: the session waits for it" in log
+
+
+# --------------------------------------------------------------------------------------------------
+# cdpr convert --to rosbag2
+
+
+@pytest.mark.slow
+def test_a_recording_converts_to_a_ros2_bag_with_every_step(tmp_path: Path) -> None:
+    from rosbags.rosbag2 import Reader
+
+    from cdpr import recording
+    from cdpr.tools.report import read_recording, state_columns
+
+    rrd = tmp_path / "run.rrd"
+    run = subprocess.run([*CDPR, "run", str(HERE / "scenarios" / "caroca_15kg_sensors.yaml"), "--duration", "0.3",
+                          "--in-process", "--quiet", "--rrd", str(rrd)], capture_output=True, text=True, timeout=300)
+    assert run.returncode == 0, run.stderr[-2000:]
+    conv = subprocess.run([*CDPR, "convert", str(rrd), "--to", "rosbag2"], capture_output=True, text=True,
+                          timeout=300)
+    assert conv.returncode == 0, conv.stderr[-2000:]
+    out = last_json_line(conv.stdout)
+    bag = tmp_path / "run_rosbag2"
+    assert out["output"] == str(bag)
+    assert (bag / "metadata.yaml").is_file()
+
+    data = read_recording(rrd)
+    k = data.get(recording.ACTUAL_POSITION).step
+    cols = state_columns(data, k, 8)
+    got: dict[str, list[object]] = {}
+    with Reader(bag) as reader:
+        assert reader.message_count == out["messages"]
+        types = {c.topic: c.msgtype for c in reader.connections}
+        for c in reader.connections:
+            assert c.digest == STORE.hash_rihs01(c.msgtype)  # the bag's type hashes: rosbags' own
+        for conn, ns, raw in reader.messages():
+            msg = STORE.deserialize_cdr(raw, conn.msgtype)
+            if hasattr(msg, "header"):
+                assert ns == msg.header.stamp.sec * 10**9 + msg.header.stamp.nanosec  # bag time = stamp
+            got.setdefault(conn.topic, []).append(msg)
+    assert types["/cdpr/joint_commands"] == "sensor_msgs/msg/JointState"
+    assert [(c.clock.sec, c.clock.nanosec) for c in got["/clock"]] == [stamp(step * 0.001) for step in k.tolist()]
+    for i, js in enumerate(got["/cdpr/joint_states"]):
+        assert js.position.tolist() == cols["cable_lengths"][i].tolist()
+        assert js.effort.tolist() == cols["tensions"][i].tolist()
+    for i, ps in enumerate(got["/cdpr/platform/pose"]):
+        p, q = ps.pose.position, ps.pose.orientation
+        assert [p.x, p.y, p.z, q.x, q.y, q.z, q.w] == cols["pose"][i].tolist()
+    for i, tw in enumerate(got["/cdpr/platform/twist"]):
+        assert [tw.twist.linear.x, tw.twist.angular.z] == [cols["twist"][i][0], cols["twist"][i][5]]
+    commands = data.get(recording.COMMAND_TENSIONS)
+    assert [c.effort.tolist() for c in got["/cdpr/joint_commands"]] == commands.values.tolist()
+    assert [c.header.stamp.nanosec for c in got["/cdpr/joint_commands"]] == (commands.step * 1_000_000).tolist()
+    gyro = data.get(recording.SENSOR_GYRO)
+    assert len(got["/cdpr/imu"]) == len(gyro.step) == len(k)
+    assert [[m.angular_velocity.x, m.angular_velocity.y, m.angular_velocity.z] for m in got["/cdpr/imu"]] \
+        == gyro.values.tolist()
+    loads = data.get(recording.SENSOR_LOAD_CELLS)
+    assert [m.effort.tolist() for m in got["/cdpr/sensors/joint_states"]] == loads.values.tolist()
+    assert len(got["/cdpr/setpoint/pose"]) == len(data.get(recording.DESIRED_POSITION).step)
+    (info,) = got["/cdpr/session_info"]
+    assert '"scenario": "caroca_15kg_sensors"' in info.data
+    assert set(got) == {"/clock", "/tf", *(f"/cdpr/{t}" for t in ("joint_states", "platform/pose", "platform/twist",
+                        "setpoint/pose", "joint_commands", "imu", "sensors/joint_states", "session_info"))}

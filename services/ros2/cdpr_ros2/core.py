@@ -12,12 +12,16 @@ from __future__ import annotations
 
 import json
 from collections import OrderedDict
+from collections.abc import Sequence
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 
 from cdpr.config.scenario import Scenario
 from cdpr.mechanics.kinematics import cable_length_rates, inverse_kinematics
+from cdpr.mechanics.outputs import CommandKind
+from cdpr.mechanics.robot import Robot
 from cdpr.mechanics.rotation import quat_to_matrix
 from cdpr.protocol import Command, Sensors, Setpoint, State
 from cdpr.protocol.session import session_info
@@ -59,6 +63,11 @@ COMMANDS: dict[str, RosTopic] = {
 STEP_TOPICS = ("clock", "joint_states", "pose", "twist", "tf", "setpoint_pose", "setpoint_twist", "setpoint_accel")
 
 
+def cable_names(m: int) -> tuple[str, ...]:
+    """The joints of sensor_msgs/JointState: one per cable, ``cable_1`` … ``cable_m``."""
+    return tuple(f"cable_{i + 1}" for i in range(m))
+
+
 class RosCommandError(ValueError):
     """A ROS 2 command that cannot be applied; ``counter`` is the fault counter it goes under."""
 
@@ -70,16 +79,20 @@ class RosCommandError(ValueError):
 class Bridge:
     """One session's ROS 2 view (module docstring). ``free``: the session is free-running."""
 
-    def __init__(self, scenario: Scenario) -> None:
-        self.robot = scenario.robot
-        self.m = scenario.robot.m
-        self.output = scenario.output  # "tensions" or "lengths": what a command carries
-        self.names = tuple(f"cable_{i + 1}" for i in range(self.m))
+    def __init__(self, robot: Robot, output: CommandKind, info: dict[str, Any]) -> None:
+        """``info``: the session/info map (:func:`cdpr.protocol.session.session_info`)."""
+        self.robot = robot
+        self.m = robot.m
+        self.output = output  # "tensions" or "lengths": what a command carries
+        self.names = cable_names(self.m)
         self._order = {name: i for i, name in enumerate(self.names)}
-        self.info = {"v": 2, **session_info(scenario), "cables": list(self.names), "world_frame": WORLD,
-                     "platform_frame": PLATFORM}
+        self.info = {"v": 2, **info, "cables": list(self.names), "world_frame": WORLD, "platform_frame": PLATFORM}
         self.free = False
         self.pending: OrderedDict[tuple[int, int], State] = OrderedDict()  # published, not answered: by stamp
+
+    @classmethod
+    def from_scenario(cls, scenario: Scenario) -> Bridge:
+        return cls(scenario.robot, scenario.output, session_info(scenario))
 
     def info_message(self) -> bytes:
         """``session_info``: the session/info map as JSON (robot geometry, mass, inertia, limits, gains)."""
@@ -119,10 +132,14 @@ class Bridge:
 
     def sensor_messages(self, sensors: Sensors) -> list[tuple[str, bytes]]:
         """The IMU (platform frame) and the winches' encoders (position) and load cells (effort)."""
-        t = stamp(sensors.t)
+        return self.sensor_messages_of(sensors.t, sensors.encoders, sensors.load_cells, sensors.accel, sensors.gyro)
+
+    def sensor_messages_of(self, t: float, encoders: Sequence[float], load_cells: Sequence[float],
+                           accel: Sequence[float], gyro: Sequence[float]) -> list[tuple[str, bytes]]:
+        stamp_ = stamp(t)
         return [
-            ("imu", ros.imu(t, PLATFORM, sensors.gyro, sensors.accel)),
-            ("sensor_joint_states", ros.joint_state(t, self.names, sensors.encoders, (), sensors.load_cells)),
+            ("imu", ros.imu(stamp_, PLATFORM, gyro, accel)),
+            ("sensor_joint_states", ros.joint_state(stamp_, self.names, encoders, (), load_cells)),
         ]
 
     def command(self, topic: str, payload: bytes) -> Command:

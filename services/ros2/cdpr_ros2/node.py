@@ -57,7 +57,7 @@ class Ros2Node(Node):
     def __init__(self, scenario: Scenario, keys: Keys, namespace: str = "/cdpr", domain: int = 0,
                  observe: bool = False, node_name: str = "cdpr") -> None:
         super().__init__(keys)
-        self.bridge = Bridge(scenario)
+        self.bridge = Bridge.from_scenario(scenario)
         self.m = scenario.robot.m
         self.total_steps = scenario.total_steps
         self.namespace, self.domain, self.observe, self.node_name = namespace, domain, observe, node_name

@@ -79,7 +79,7 @@ class Writer:
 
     def f64_seq(self, values: Sequence[float]) -> Writer:
         self.u32(len(values))
-        return self.f64s(values) if values else self
+        return self.f64s(values) if len(values) else self
 
     def strings(self, values: Sequence[str]) -> Writer:
         self.u32(len(values))

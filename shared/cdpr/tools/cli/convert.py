@@ -25,10 +25,20 @@ from cdpr.tools.cli.group import cli, emit
 
 @cli.command()
 @click.argument("file", type=click.Path())
-@click.option("--to", "fmt", type=click.Choice(["mcap"]), required=True, help="the format to write")
-@click.option("-o", "--output", type=click.Path(), default=None, help="where to write (default: FILE.mcap beside it)")
-def convert(file: str, fmt: str, output: str | None) -> None:
-    """Convert the recording FILE.rrd (from cdpr run --rrd) to MCAP for Foxglove (and Rerun's MCAP reader)."""
+@click.option("--to", "fmt", type=click.Choice(["mcap", "rosbag2"]), required=True,
+              help="mcap: Foxglove's MCAP file; rosbag2: a ROS 2 bag directory (MCAP storage, CDR: ros2 bag play)")
+@click.option("-o", "--output", type=click.Path(), default=None,
+              help="where to write (default: FILE.mcap, or the directory FILE_rosbag2, beside it)")
+@click.option("--ros-namespace", default="/cdpr", show_default=True, help="rosbag2: the namespace of the topics")
+def convert(file: str, fmt: str, output: str | None, ros_namespace: str) -> None:
+    """Convert the recording FILE.rrd (from cdpr run --rrd) to MCAP for Foxglove (and Rerun's MCAP reader), or to
+    a ROS 2 bag with the ros2 node's topics (docs/ros2.md)."""
+    if fmt == "rosbag2":
+        from cdpr.tools.rosbag2 import rrd_to_rosbag2
+
+        emit(rrd_to_rosbag2(file, Path(output) if output is not None else Path(file).with_name(
+            Path(file).stem + "_rosbag2"), ros_namespace))
+        return
     out = Path(output) if output is not None else Path(file).with_suffix(f".{fmt}")
     emit(rrd_to_mcap(file, out))
 

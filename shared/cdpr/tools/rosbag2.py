@@ -1,0 +1,111 @@
+"""``cdpr convert FILE.rrd --to rosbag2``: a recording as a ROS 2 bag (MCAP storage, CDR), for ``ros2 bag play``.
+
+The topics and stamps are the ros2 node's (docs/ros2.md), written with its own encoders, so a bag played back
+looks like the live session to a ROS 2 node: every recorded state as ``/clock``, ``joint_states``,
+``platform/pose``, ``platform/twist`` and ``/tf``; every setpoint as ``setpoint/pose``; every command as
+``joint_commands`` (the controller's answer, stamped with the state it answered); the sensors as ``imu`` and
+``sensors/joint_states``; ``session_info`` once, latched. A recording keeps the setpoint's pose only, so
+``setpoint/twist`` and ``setpoint/accel`` are not in a bag. Each message's bag timestamp is its stamp (sim
+time). The bag directory (``metadata.yaml`` and the ``.mcap``) is written by the ``rosbags`` library.
+"""
+
+from __future__ import annotations
+
+import shutil
+from collections import Counter
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from cdpr.errors import InputError
+
+
+def rrd_to_rosbag2(rrd: str | Path, out: str | Path, namespace: str = "/cdpr") -> dict[str, Any]:
+    """Write the cdpr recording ``rrd`` as the ROS 2 bag directory ``out``; what was written, JSON-ready."""
+    from rosbags.interfaces import Qos, QosDurability, QosHistory, QosLiveliness, QosReliability, QosTime
+    from rosbags.rosbag2 import StoragePlugin, Writer
+    from rosbags.typesys import Stores, get_typestore
+
+    from cdpr import recording
+    from cdpr.protocol import ProtocolError, State
+    from cdpr.protocol.session import robot_from_summary
+    from cdpr.ros2 import messages as ros
+    from cdpr.ros2.cdr import stamp
+    from cdpr.ros2.graph import qualify
+    from cdpr.tools.report import read_recording, state_columns
+    from cdpr_ros2.core import PUBLISHED, Bridge, cable_names
+
+    src, dst = Path(rrd), Path(out)
+    if dst.exists():
+        if not (dst / "metadata.yaml").is_file():
+            raise InputError(f"-o: {dst} exists and is not a ROS 2 bag (no metadata.yaml): not overwritten")
+        shutil.rmtree(dst)  # a bag written before: replaced, as a converted .mcap is
+    data = read_recording(src)
+    session = data.session
+    try:
+        info = session["info"]
+        robot = robot_from_summary(info["robot"])
+        dt, m = float(session["dt"]), int(session["cables"])
+        output = info.get("controller", {}).get("output", "tensions")
+    except (KeyError, TypeError, ValueError, AttributeError, ProtocolError) as exc:
+        raise InputError(f"{src}: the session description lacks what a bag needs ({exc})") from None
+    bridge = Bridge(robot, output, info)
+    names = cable_names(m)
+    get = data.get
+    k = get(recording.ACTUAL_POSITION).step
+    try:
+        cols = state_columns(data, k, m)
+        desired = get(recording.DESIRED_POSITION)
+        dq = get(recording.DESIRED_QUATERNION).at(desired.step)
+        feasible = get(recording.COMMAND_FEASIBLE)
+        commands = get(recording.COMMAND_LENGTHS if output == "lengths" else recording.COMMAND_TENSIONS)
+        command_values = commands.at(feasible.step)
+        enc = get(recording.SENSOR_ENCODERS)
+        sensors = (enc.values, get(recording.SENSOR_LOAD_CELLS).at(enc.step), get(recording.SENSOR_ACCEL).at(enc.step),
+                   get(recording.SENSOR_GYRO).at(enc.step))
+    except KeyError as exc:
+        raise InputError(f"{src}: incomplete recording: no data for step {exc.args[0]}") from None
+
+    rows: list[tuple[int, str, bytes]] = [(0, "session_info", bridge.info_message())]  # (bag time ns, topic, payload)
+    for i, step in enumerate(k.tolist()):
+        state = State(step, step * dt, tuple(cols["pose"][i]), tuple(cols["twist"][i]),
+                      tuple(cols["cable_lengths"][i]), tuple(cols["tensions"][i]))
+        rows += [(_ns(state.t), name, payload) for name, payload in bridge.state_messages(state)]
+    for step, position, q in zip(desired.step.tolist(), desired.values, dq, strict=True):
+        rows.append((_ns(step * dt), "setpoint_pose", ros.pose_stamped(stamp(step * dt), "world", (*position, *q))))
+    for step, values in zip(feasible.step.tolist(), command_values.tolist(), strict=True):
+        lengths, tensions = (values, []) if output == "lengths" else ([], values)
+        rows.append((_ns(step * dt), "joint_commands", ros.joint_state(stamp(step * dt), names, lengths, [], tensions)))
+    for step, e, c, a, g in zip(enc.step.tolist(), *sensors, strict=True):
+        rows += [(_ns(step * dt), name, payload) for name, payload in bridge.sensor_messages_of(step * dt, e, c, a, g)]
+    rows.sort(key=lambda r: r[0])  # a bag's messages in time order (stable: a step's topics keep theirs)
+
+    topics = {name: (qualify(namespace, t.name), t.ros_type, t.qos.transient_local) for name, t in PUBLISHED.items()}
+    topics["joint_commands"] = (qualify(namespace, "joint_commands"), "sensor_msgs/msg/JointState", False)
+    store = get_typestore(Stores.ROS2_JAZZY)
+    forever = QosTime(sec=0, nsec=0)
+    latched = Qos(QosHistory.KEEP_LAST, 1, QosReliability.RELIABLE, QosDurability.TRANSIENT_LOCAL, forever, forever,
+                  QosLiveliness.AUTOMATIC, forever, False)
+    counts: Counter[str] = Counter()
+    dst.parent.mkdir(parents=True, exist_ok=True)
+    try:
+        with Writer(dst, version=9, storage_plugin=StoragePlugin.MCAP) as bag:
+            present = {r[1] for r in rows}
+            connections = {name: bag.add_connection(topic, ros_type, typestore=store,
+                                                    offered_qos_profiles=[latched] if keep else [])
+                           for name, (topic, ros_type, keep) in topics.items() if name in present}
+            for ns, name, payload in rows:
+                bag.write(connections[name], ns, payload)
+                counts[topics[name][0]] += 1
+    except BaseException:
+        shutil.rmtree(dst, ignore_errors=True)  # no half-written bag left behind
+        raise
+    return {"input": str(src), "output": str(dst), "format": "rosbag2", "storage": "mcap",
+            "recording_id": data.recording_id, "scenario": session.get("scenario"), "states": len(k),
+            "messages": sum(counts.values()), "topics": dict(sorted(counts.items())),
+            "bytes": sum(f.stat().st_size for f in dst.iterdir())}
+
+
+def _ns(t: float) -> int:
+    return int(np.int64(round(t * 1e9)))
