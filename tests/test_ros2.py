@@ -231,8 +231,9 @@ def test_an_unstamped_command_answers_the_oldest_state_or_free_running_the_newes
     for k in (4, 5):
         bridge.step_messages(_state(k), _setpoint(k))
     assert bridge.command("tension_commands", ros.float64_array([1.0] * 8)).step == 5
+    assert bridge.command("tension_commands", ros.float64_array([2.0] * 8)).step == 5  # as they arrive
     with pytest.raises(RosCommandError, match="no state awaits a command"):
-        bridge.command("tension_commands", ros.float64_array([1.0] * 8))
+        Bridge.from_scenario(scenario).command("tension_commands", ros.float64_array([1.0] * 8))  # type: ignore[arg-type]
 
 
 @pytest.mark.parametrize(("topic", "payload", "message", "counter"), [
@@ -517,6 +518,26 @@ def test_the_graph_the_wait_the_pause_and_bad_commands(ros2_session: Session) ->
     log = ros2_session.stderr.read_text()
     assert "[ros2] dropped a bad /cdpr/tension_commands message: Float64MultiArray.data: 9 values, expected 8" in log
     assert "[ros2] the ROS 2 controller left: the session waits for it" in log
+
+
+@pytest.mark.slow
+def test_free_running_unstamped_commands_apply_as_they_arrive(ros2_session: Session, tmp_path: Path) -> None:
+    """Free-running realtime (the sim on the wall clock): a Float64MultiArray controller, as under Gazebo — each
+    command answers the newest state when it arrives and acts from the sim's next step."""
+    from test_realtime import _scenario
+
+    # 500 Hz and gains that tolerate a few steps of latency (docs/realtime.md: the paper's do not)
+    path = _scenario(tmp_path, "ros2_free", dt=0.002, duration=3.0, controller__kp=400.0, controller__kd=40.0)
+    ros2_session.start(str(path), None, "--mode", "realtime", "--sync", "free")
+    ros2_session.controller("controller", "--unstamped")
+    s = ros2_session.summary()
+    assert s["exit_ok"], s
+    assert (s["sync"], s["steps"]) == ("free", 1500)
+    assert s["rtf"] == pytest.approx(1.0, abs=0.02)
+    assert s["watchdog_steps"] == 0  # a command every step or so: the watchdog never acts
+    assert s["command_age_p50"] <= 2  # the newest state's answer, acting at once
+    assert s["rms_position_error"] < 1e-3, s
+    assert "ros2" not in s["faults"], s["faults"]
 
 
 # --------------------------------------------------------------------------------------------------

@@ -4,7 +4,8 @@
 (:meth:`Bridge.step_messages`), the sensors into theirs, and a ROS 2 controller's command into the
 session's :class:`~cdpr.protocol.Command` (:meth:`Bridge.command`): a ``joint_commands`` JointState is bound
 to the state whose stamp it carries, a ``tension_commands`` Float64MultiArray to the oldest state not yet
-answered (free-running: the newest, so that it acts at once, as a command does under Gazebo). Anything else
+answered (free-running: the newest published, answered or not, so that it acts at once, as a command does
+under Gazebo). Anything else
 raises :class:`RosCommandError` with a one-line reason naming the field. docs/ros2.md.
 """
 
@@ -88,6 +89,7 @@ class Bridge:
         self._order = {name: i for i, name in enumerate(self.names)}
         self.info = {"v": 2, **info, "cables": list(self.names), "world_frame": WORLD, "platform_frame": PLATFORM}
         self.free = False
+        self.newest: State | None = None  # the last state published with its setpoint
         self.pending: OrderedDict[tuple[int, int], State] = OrderedDict()  # published, not answered: by stamp
 
     @classmethod
@@ -119,6 +121,7 @@ class Bridge:
         """State k and setpoint k as (topic, payload) for every topic of :data:`STEP_TOPICS`; state k now
         awaits its command."""
         t = stamp(state.t)
+        self.newest = state
         self.pending[t] = state
         self.pending.move_to_end(t)
         while len(self.pending) > MAX_PENDING:
@@ -161,9 +164,14 @@ class Bridge:
                 if len(values) != self.m:
                     raise RosCommandError(f"Float64MultiArray.data: {len(values)} values, expected {self.m} "
                                      f"({self.output}, cable_1 … cable_{self.m})")
-                if not self.pending:
+                if self.free:
+                    state = self.newest  # it acts from the sim's next step, whatever it answered
+                elif self.pending:
+                    state = next(iter(self.pending.values()))
+                else:
+                    state = None
+                if state is None:
                     raise RosCommandError("Float64MultiArray: no state awaits a command", "unmatched_ros2_commands")
-                state = next(reversed(self.pending.values())) if self.free else next(iter(self.pending.values()))
             finite(values, field, "JointState" if topic == "joint_commands" else "Float64MultiArray")
         except CdrError as exc:
             raise RosCommandError(str(exc)) from None
