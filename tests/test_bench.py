@@ -39,11 +39,11 @@ def bench(tmp_path_factory: pytest.TempPathFactory) -> tuple[dict, str]:
 
 def test_top_level_and_machine(bench: tuple[dict, str]) -> None:
     r, _ = bench
-    assert r["version"] == 6
+    assert r["version"] == 7
     assert r["quick"] is True
     assert r["scenario"] == "caroca_15kg"
     for key in ("plan", "machine", "started", "elapsed_s", "monolithic", "distributed", "loops", "deliveries",
-                "startup", "zenoh_rtt", "realtime", "realtime_2khz", "tda", "scaling", "mujoco", "targets"):
+                "startup", "zenoh_rtt", "realtime", "realtime_2khz", "tda", "scaling", "mujoco", "ros2", "targets"):
         assert key in r, key
     m = r["machine"]
     assert isinstance(m["nproc"], int)
@@ -51,7 +51,7 @@ def test_top_level_and_machine(bench: tuple[dict, str]) -> None:
     assert isinstance(m["cpu_model"], str)
     assert len(m["loadavg"]) == 3
     assert len(m["loadavg_end"]) == 3
-    parts = ["loops", "startup", "zenoh_rtt", "realtime", "tda", "scaling", "mujoco"]
+    parts = ["loops", "startup", "zenoh_rtt", "realtime", "tda", "scaling", "mujoco", "ros2"]
     assert list(m["loadavg_by_part"]) == parts
     assert all(isinstance(x, float) and x >= 0 for x in m["loadavg_by_part"].values())
     assert _positive(r["elapsed_s"])
@@ -285,3 +285,21 @@ def test_the_mujoco_peer_in_the_bench(bench: tuple[dict, str]) -> None:
     assert agree["max_orientation_difference_rad"] < 1e-5
     assert "7 the MuJoCo peer" in text
     assert "monolithic/mujoco_peer>=1.0" in r["targets"]
+
+
+def test_the_ros2_controller_in_the_bench(bench: tuple[dict, str]) -> None:
+    r, text = bench
+    ros = r["ros2"]
+    assert ros["available"] is True
+    assert ros["steps"] == round(QUICK.ros2_duration / load_scenario("caroca_15kg").dt)
+    for kind in ("cdpr", "ros2"):
+        assert _positive(ros[kind]["steps_per_s"])
+        assert len(ros[kind]["runs_steps_per_s"]) == QUICK.ros2_repeats
+        assert ros[kind]["rms_position_error"] < 1e-3
+    assert ros["ratio"] == pytest.approx(ros["ros2"]["steps_per_s"] / ros["cdpr"]["steps_per_s"])
+    by = ros["ros2"]["cpu_us_per_step_by_process"]
+    assert _positive(by["ros2"])
+    assert _positive(by["ros2_controller"])
+    assert ros["ros2"]["ros2_side_cpu_us_per_step"] == pytest.approx(by["ros2"] + by["ros2_controller"])
+    assert "8 a ROS 2 controller" in text
+    assert "ros2_controller/cdpr_controller>=0.5" in r["targets"]

@@ -29,17 +29,16 @@ from cdpr.protocol import Keys, Setpoint, State, Status
 from cdpr.ros2 import graph
 from cdpr.ros2 import messages as ros
 from cdpr.ros2.cdr import CdrError, stamp
+from cdpr.tools.bench import ros2_controller
+from cdpr.tools.bench.ros2_messages import make_cache
 from cdpr_ros2.core import COMMANDS, PUBLISHED, Bridge, RosCommandError
 from conftest import CDPR, free_port, last_json_line
 from test_compose import Processes
 
 HERE = Path(__file__).resolve().parent
-CONTROLLER = HERE / "ros2" / "controller.py"
+CONTROLLER = Path(ros2_controller.__file__)  # run as a script (it imports nothing of cdpr)
 STORE = get_typestore(Stores.ROS2_JAZZY)
 WAIT = 30.0  # seconds any single expected event may take (a bound, never a measurement)
-sys.path.insert(0, str(HERE / "ros2"))
-
-from msg_cache import make_cache  # noqa: E402  (tests/ros2: the zenoh-ros2-sdk side)
 
 
 def serialize(ros_type: str, **fields: object) -> bytes:

@@ -13,7 +13,7 @@ from __future__ import annotations
 
 import json
 from collections import OrderedDict
-from collections.abc import Sequence
+from collections.abc import Container, Sequence
 from dataclasses import dataclass
 from typing import Any
 
@@ -105,33 +105,41 @@ class Bridge:
         kin = inverse_kinematics(self.robot, np.asarray(state.pose[:3]), quat_to_matrix(np.asarray(state.pose[3:])))
         return cable_length_rates(kin, state.twist).tolist()
 
-    def state_messages(self, state: State) -> list[tuple[str, bytes]]:
-        """State k's own topics: /clock, joint_states, the platform's pose and twist, /tf."""
+    def state_messages(self, state: State, wanted: Container[str] = STEP_TOPICS) -> list[tuple[str, bytes]]:
+        """State k's own topics among ``wanted``: /clock, joint_states, the platform's pose and twist, /tf."""
         t = stamp(state.t)
-        return [
-            ("clock", ros.clock(t)),
-            ("joint_states", ros.joint_state(t, self.names, state.cable_lengths, self.length_rates(state),
-                                             state.tensions)),
-            ("pose", ros.pose_stamped(t, WORLD, state.pose)),
-            ("twist", ros.twist_stamped(t, WORLD, state.twist)),
-            ("tf", ros.tf_message(t, WORLD, PLATFORM, state.pose)),
-        ]
+        out = []
+        if "clock" in wanted:
+            out.append(("clock", ros.clock(t)))
+        if "joint_states" in wanted:
+            out.append(("joint_states", ros.joint_state(t, self.names, state.cable_lengths, self.length_rates(state),
+                                                        state.tensions)))
+        if "pose" in wanted:
+            out.append(("pose", ros.pose_stamped(t, WORLD, state.pose)))
+        if "twist" in wanted:
+            out.append(("twist", ros.twist_stamped(t, WORLD, state.twist)))
+        if "tf" in wanted:
+            out.append(("tf", ros.tf_message(t, WORLD, PLATFORM, state.pose)))
+        return out
 
-    def step_messages(self, state: State, setpoint: Setpoint) -> list[tuple[str, bytes]]:
-        """State k and setpoint k as (topic, payload) for every topic of :data:`STEP_TOPICS`; state k now
-        awaits its command."""
+    def step_messages(self, state: State, setpoint: Setpoint, wanted: Container[str] = STEP_TOPICS
+                      ) -> list[tuple[str, bytes]]:
+        """State k and setpoint k as (topic, payload) for the topics of :data:`STEP_TOPICS` among ``wanted``;
+        state k now awaits its command (whatever is wanted)."""
         t = stamp(state.t)
         self.newest = state
         self.pending[t] = state
         self.pending.move_to_end(t)
         while len(self.pending) > MAX_PENDING:
             self.pending.popitem(last=False)
-        return [
-            *self.state_messages(state),
-            ("setpoint_pose", ros.pose_stamped(t, WORLD, setpoint.pose)),
-            ("setpoint_twist", ros.twist_stamped(t, WORLD, setpoint.twist)),
-            ("setpoint_accel", ros.accel_stamped(t, WORLD, setpoint.accel)),
-        ]
+        out = self.state_messages(state, wanted)
+        if "setpoint_pose" in wanted:
+            out.append(("setpoint_pose", ros.pose_stamped(t, WORLD, setpoint.pose)))
+        if "setpoint_twist" in wanted:
+            out.append(("setpoint_twist", ros.twist_stamped(t, WORLD, setpoint.twist)))
+        if "setpoint_accel" in wanted:
+            out.append(("setpoint_accel", ros.accel_stamped(t, WORLD, setpoint.accel)))
+        return out
 
     def sensor_messages(self, sensors: Sensors) -> list[tuple[str, bytes]]:
         """The IMU (platform frame) and the winches' encoders (position) and load cells (effort)."""

@@ -33,10 +33,19 @@ from cdpr_ros2.core import COMMANDS, PUBLISHED, Bridge, RosCommandError
 
 class _RosPublisher:
     """One ROS 2 publisher: its Zenoh publisher, GID and sequence numbers (every message carries rmw_zenoh's
-    attachment)."""
+    attachment), and whether any subscriber matches it now (``matched``: Zenoh's matching status; a
+    transient-local one always counts as matched, for the late joiners)."""
 
-    def __init__(self, pub: Any) -> None:
+    def __init__(self, pub: Any, transient_local: bool = False) -> None:
         self.pub, self.gid, self.seq = pub, os.urandom(16), 0
+        self.matched = True
+        self.listener: Any = None
+        if not transient_local:
+            self.matched = pub.matching_status.matching
+            self.listener = pub.declare_matching_listener(self._on_matching)
+
+    def _on_matching(self, status: Any) -> None:
+        self.matched = status.matching
 
     def put(self, payload: bytes) -> None:
         self.seq += 1
@@ -111,9 +120,12 @@ class Ros2Node(Node):
                 pub: Any = zenoh.ext.declare_advanced_publisher(
                     session, key, cache=zenoh.ext.CacheConfig(max_samples=topic.qos.depth), publisher_detection=True)
             else:
-                pub = session.declare_publisher(key, **PUBLISH_OPTS)
-            self.ros[name] = _RosPublisher(pub)
+                # not express: a step's messages leave in one batch (one write, one wake-up of a subscriber)
+                pub = session.declare_publisher(key, **{**PUBLISH_OPTS, "express": False})
+            self.ros[name] = _RosPublisher(pub, topic.qos.transient_local)
             keep.append(pub)
+            if self.ros[name].listener is not None:
+                keep.append(self.ros[name].listener)
             keep.append(liveliness.declare_token(
                 endpoint_token(me, i, "MP", self.topic(topic.name), topic.ros_type, topic.qos)))
         self.ros["session_info"].put(self.bridge.info_message())
@@ -139,14 +151,17 @@ class Ros2Node(Node):
         if topic in ("state", "setpoints"):
             if (due := pair(self, self.pairing, event, self.m)) is not None:
                 state, setpoint = due
-                for name, payload in self.bridge.step_messages(state, setpoint):
+                # only the topics somebody subscribes to now: a message nobody takes is neither encoded nor sent
+                wanted = {name for name, pub in self.ros.items() if pub.matched}
+                for name, payload in self.bridge.step_messages(state, setpoint, wanted):
                     self.ros[name].put(payload)
                 self.pairing.done(state.step)
                 self.published_steps += 1
         elif topic == "sensors":
             if (sensors := self.decode(event, self.m)) is not None:
                 for name, payload in self.bridge.sensor_messages(sensors):
-                    self.ros[name].put(payload)
+                    if self.ros[name].matched:
+                        self.ros[name].put(payload)
         elif topic == "tick":
             if (tick := self.decode(event)) is not None and tick.free:
                 self.bridge.free = True
@@ -160,7 +175,7 @@ class Ros2Node(Node):
         state = self.decode(event, self.m)
         if state is None or state.step < self.total_steps:
             return state is None
-        for name, payload in self.bridge.state_messages(state):
+        for name, payload in self.bridge.state_messages(state, {n for n, pub in self.ros.items() if pub.matched}):
             self.ros[name].put(payload)
         self.published_steps += 1
         return True

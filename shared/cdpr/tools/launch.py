@@ -334,7 +334,8 @@ def node_argv(scenario: Scenario, opts: RunOptions, router: str) -> dict[str, li
     forward); the router then only introduces them and serves the monitor. With remote participants,
     every service is a client of the router, as the remote ones are.
     """
-    remote = bool(opts.without)
+    # a ROS 2 controller (through the ros2 node, a peer as rmw_zenoh's nodes are) needs no client of the router
+    remote = bool(opts.without) and not (opts.ros2 and set(opts.without) == {"controller"})
     mode_args = ["--zenoh-mode", "client"] if remote else ["--zenoh-mode", "peer", "--listen", PEER_LISTEN]
     session_args = [scenario.source, "--session", opts.session_id, "--duration", repr(scenario.duration)]
     loop = [*session_args, *mode_args, "--connect", router]
@@ -350,7 +351,7 @@ def node_argv(scenario: Scenario, opts: RunOptions, router: str) -> dict[str, li
     argv.update({name: loop for name in ("sim", "trajectory", "controller") if name not in opts.without})
     if opts.ros2:  # ROS 2 nodes join through the router (rmw_zenoh's peers connect to it): a client of it
         observe = [] if "controller" in opts.without else ["--observe"]  # never a second controller
-        argv["ros2"] = [*session_args, "--zenoh-mode", "client", "--connect", router,
+        argv["ros2"] = [*session_args, "--zenoh-mode", "peer", "--listen", PEER_LISTEN, "--connect", router,
                         "--ros-namespace", opts.ros_namespace, *observe]
     if opts.recording:
         # The recorder is a client of the router even among local peers: it takes a few blocks a second

@@ -140,6 +140,8 @@ def targets(result: dict[str, Any]) -> dict[str, dict[str, Any]]:
         out["qp_same_optimum<=1e-6"] = target(diff, diff <= 1e-6)
     if (mj := result.get("mujoco", {})).get("available"):
         out["monolithic/mujoco_peer>=1.0"] = target(x := mj["monolithic_to_peer"], x >= 1.0)
+    if (ros := result.get("ros2", {})).get("available"):
+        out["ros2_controller/cdpr_controller>=0.5"] = target(x := ros["ratio"], x >= 0.5)
     return out
 
 
@@ -161,7 +163,7 @@ def run_bench(plan: BenchPlan, scenario: str = "caroca_15kg", out: Path | None =
 
     def part(name: str, message: str) -> None:
         load[name] = os.getloadavg()[0]
-        log(f"{len(load)}/7 {message}")
+        log(f"{len(load)}/8 {message}")
 
     part("loops", f"distributed loop: multi-process, recording (.rrd; .rrd and .mcap), in-process (x "
                   f"{plan.loop_repeats}), each after the monolithic loop ({plan.mono_steps} steps)")
@@ -196,6 +198,11 @@ def run_bench(plan: BenchPlan, scenario: str = "caroca_15kg", out: Path | None =
     from cdpr.tools.bench.mujoco_peer import bench_mujoco
 
     result["mujoco"] = bench_mujoco(sc, plan.mono_steps, max(plan.loop_repeats, 1))
+    part("ros2", f"a ROS 2 controller (zenoh-ros2-sdk) and the cdpr controller, each joining the session from "
+                 f"its own process ({plan.ros2_duration:g} s, x {plan.ros2_repeats}, alternating)")
+    from cdpr.tools.bench.ros2 import bench_ros2
+
+    result["ros2"] = bench_ros2(scenario, plan.ros2_duration, plan.ros2_repeats)
     result["machine"]["loadavg_end"] = list(os.getloadavg())
     result["elapsed_s"] = time.monotonic() - started
     result["targets"] = targets(result)
@@ -325,6 +332,20 @@ def table(r: dict[str, Any]) -> str:
         )]
     else:
         lines.append(f"    {mj['reason']}")
+    lines += ["", "8 a ROS 2 controller (zenoh-ros2-sdk, rmw_zenoh's wire) vs the cdpr controller, same session"]
+    ros = r.get("ros2") or {"available": False, "reason": "not run"}
+    if ros["available"]:
+        lines += [f"    {name:48s} {value:>22s}" for name, value in (
+            ("cdpr controller (its own process), steps/s", _fmt(ros["cdpr"]["steps_per_s"])),
+            ("ROS 2 controller through the ros2 node, steps/s", _fmt(ros["ros2"]["steps_per_s"])),
+            ("    ratio", _fmt(ros["ratio"], 2)),
+            ("    ROS 2 side's CPU (ros2 node + controller), us/step", _fmt(ros["ros2"]["ros2_side_cpu_us_per_step"])),
+            *((f"      {k}", _fmt(v)) for k, v in ros["ros2"]["cpu_us_per_step_by_process"].items()),
+            ("    RMS position error, ROS 2 / cdpr, mm", f"{1e3 * ros['ros2']['rms_position_error']:.3f} / "
+                                                       f"{1e3 * ros['cdpr']['rms_position_error']:.3f}"),
+        )]
+    else:
+        lines.append(f"    {ros['reason']}")
     lines += ["", "targets"]
     lines += [target_line(name, t) for name, t in r["targets"].items()]
     return "\n".join(lines)

@@ -171,17 +171,29 @@ def _process_cpu(root: int, waits: dict[str, float] | None = None) -> dict[str, 
     return out
 
 
+def _pid_cpu(pid: int) -> float:
+    """CPU seconds (user + system) of one process (0 once it is gone)."""
+    try:
+        with open(f"/proc/{pid}/stat") as f:
+            fields = f.read().rsplit(")", 1)[1].split()
+        return (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
+    except (OSError, IndexError, ValueError):
+        return 0.0
+
+
 _PROGRESS = re.compile(r"\[cdpr\] step (\d+)/")
 
 
 class SessionRun:
     """``cdpr run`` in a subprocess; reads its progress lines to measure the CPU of the steady state."""
 
-    def __init__(self, args: Sequence[str], session: str) -> None:
+    def __init__(self, args: Sequence[str], session: str, command: str = "run",
+                 env: dict[str, str] | None = None) -> None:
         self.session = session
+        self.also: dict[str, int] = {}  # processes outside the session's tree measured with it: role -> pid
         self.proc = subprocess.Popen(
-            [sys.executable, "-m", "cdpr", "run", *args, "--session", session],
-            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+            [sys.executable, "-m", "cdpr", command, *args, "--session", session],
+            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=env,
         )
         self._marks: list[tuple[int, dict[str, float], dict[str, float]]] = []
         self._stderr: list[str] = []
@@ -194,6 +206,8 @@ class SessionRun:
             if match and int(match.group(1)) > 0:
                 waits: dict[str, float] = {}
                 if (cpu := _process_cpu(self.proc.pid, waits)) is not None:  # not once the services leave
+                    for role, pid in self.also.items():
+                        cpu[role] = _pid_cpu(pid)
                     self._marks.append((int(match.group(1)), cpu, waits))
             elif not match:
                 self._stderr.append(line)

@@ -49,6 +49,13 @@ def rotation_error(qd: np.ndarray, q: np.ndarray) -> np.ndarray:
     return np.array([ex, ey, ez]) * k
 
 
+def cross(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """Row-wise a × b (numpy's own cross product costs more than the rest of the law on 3-vectors)."""
+    a0, a1, a2 = a[..., 0], a[..., 1], a[..., 2]
+    b0, b1, b2 = b[..., 0], b[..., 1], b[..., 2]
+    return np.stack([a1 * b2 - a2 * b1, a2 * b0 - a0 * b2, a0 * b1 - a1 * b0], axis=-1)
+
+
 def distribute(W: np.ndarray, w: np.ndarray, tmin: float, tmax: float) -> np.ndarray:
     """min ‖t‖₂ subject to W t = w, tmin ≤ t ≤ tmax: the minimum-norm solution of the free cables, the worst
     violation clamped to its limit, again, until every cable is inside (or too few are left)."""
@@ -57,7 +64,8 @@ def distribute(W: np.ndarray, w: np.ndarray, tmin: float, tmax: float) -> np.nda
     free = np.ones(m, dtype=bool)
     for _ in range(m):
         rest = w - W[:, ~free] @ t[~free]
-        t[free] = np.linalg.pinv(W[:, free]) @ rest
+        Wf = W[:, free]
+        t[free] = Wf.T @ np.linalg.solve(Wf @ Wf.T, rest)  # the minimum-norm solution (W_F has full row rank)
         low, high = tmin - t, t - tmax
         worst = np.where(free, np.maximum(low, high), -np.inf)
         i = int(np.argmax(worst))
@@ -88,11 +96,11 @@ class Law:
         inertia = R @ self.inertia @ R.T
         omega = twist[3:]
         wrench = np.concatenate([self.mass * (acc[:3] - GRAVITY),
-                                 inertia @ acc[3:] + np.cross(omega, inertia @ omega)])
+                                 inertia @ acc[3:] + cross(omega, inertia @ omega)])
         b = self.platform @ R.T
         d = self.frame - p - b
         d /= np.linalg.norm(d, axis=1, keepdims=True)
-        W = np.vstack([d.T, np.cross(b, d).T])
+        W = np.vstack([d.T, cross(b, d).T])
         return distribute(W, wrench, self.tmin, self.tmax)
 
 
