@@ -34,7 +34,8 @@ EXAMPLE = ROOT / "examples" / "remote_controller.py"
 SESSION_SERVICES = ("clock", "sim", "trajectory", "recorder")
 LOOP_SERVICES = ("clock", "sim", "trajectory", "controller")  # the lock-step loop (compose.realtime.yaml)
 IMAGES = {"router": "cdpr:stack", "clock": "cdpr:stack", "trajectory": "cdpr:stack", "controller": "cdpr:stack",
-          "sim": "cdpr:sim", "recorder": "cdpr:recorder"}
+          "sim": "cdpr:sim", "recorder": "cdpr:recorder", "ros2": "cdpr:stack"}
+PROFILES = {"ros2": ["ros2"]}  # services that run only with `--profile NAME`
 BUILDS = {"router": "stack", "sim": "sim", "recorder": "recorder"}  # the one service that builds each image
 ROUTER_PORT = 7447
 COMPOSE_BIN = shutil.which("docker-compose")
@@ -286,10 +287,10 @@ def test_requirements_of_each_role() -> None:
 
 def test_compose_services_are_complete() -> None:
     services = load_compose([COMPOSE], {})
-    assert set(services) == {"router", *SESSION_SERVICES, "controller"}
+    assert set(services) == {"router", *SESSION_SERVICES, "controller", "ros2"}
     for name, s in services.items():
         assert s["image"] == IMAGES[name], name
-        assert "profiles" not in s, name
+        assert s.get("profiles") == PROFILES.get(name), name
         assert s["stop_grace_period"] == "10s", name
         if name in BUILDS:  # each image is built by one service only, then shared by tag
             assert s["build"]["target"] == BUILDS[name]
@@ -339,7 +340,7 @@ def test_compose_services_are_complete() -> None:
     assert command_of(over["clock"])[command_of(over["clock"]).index("--join-timeout") + 1] == "7"
     assert command_of(over["clock"])[command_of(over["clock"]).index("--rejoin-timeout") + 1] == "9"
     assert command_of(over["clock"])[command_of(over["clock"]).index("--sync") + 1] == "free"
-    for name in (*SESSION_SERVICES, "controller"):
+    for name in (*SESSION_SERVICES, "controller", "ros2"):
         cmd = command_of(over[name])
         assert cmd[1] == "caroca_1kg"
         assert cmd[-2:] == ["--duration", "0.5"]

@@ -132,8 +132,11 @@ class Project:
 
     def up(self, *extra: str) -> tuple[subprocess.CompletedProcess[str], float]:
         """The session command; its output (Compose v2 passes the services' stderr to its stderr) in stdout."""
+        return self.up_argv(self.session_command(*extra))
+
+    def up_argv(self, argv: list[str]) -> tuple[subprocess.CompletedProcess[str], float]:
         started = time.monotonic()
-        proc = subprocess.run(self.session_command(*extra), stdout=subprocess.PIPE, stderr=subprocess.STDOUT,
+        proc = subprocess.run(argv, stdout=subprocess.PIPE, stderr=subprocess.STDOUT,
                               text=True, timeout=SESSION_TIMEOUT, env=self.env, cwd=ROOT, check=False)
         return proc, time.monotonic() - started
 
@@ -289,6 +292,36 @@ def test_session_with_a_controller_on_the_host(project: list[Project], tmp_path:
     assert p.wait_exit("recorder") == 0
     rrd = p.recordings / f"{p.session}.rrd"
     assert host_report(rrd, tmp_path / "report")["steps"] == STEPS
+
+
+def test_a_ros2_controller_on_the_host_through_the_ros2_profile(project: list[Project], tmp_path: Path) -> None:
+    """`--profile ros2 up --scale controller=0 ... clock ros2`: the ros2 service in its container, and a ROS 2
+    controller on the host (zenoh-ros2-sdk, a peer of the router's mapped port, as rmw_zenoh's nodes are)."""
+    from cdpr.tools.bench import ros2_controller
+    from cdpr.tools.bench.ros2_messages import make_cache
+
+    (tmp_path / "gitconfig").write_text("")
+    env = {**HOST_ENV, "ZENOH_ROS2_SDK_CACHE": str(make_cache(tmp_path / "cache")),
+           "GIT_CONFIG_GLOBAL": str(tmp_path / "gitconfig")}
+    p = Project(tmp_path)
+    project.append(p)
+    with (tmp_path / "controller.log").open("w") as log:
+        ctl = subprocess.Popen([sys.executable, str(ros2_controller.__file__), "--router-port", str(p.port)],
+                               stdout=log, stderr=subprocess.STDOUT, env=env)
+        try:
+            up, _ = p.up_argv(p.argv("--profile", "ros2", "up", "--scale", "controller=0", "--exit-code-from",
+                                     "clock", "clock", "ros2"))
+        finally:
+            ctl.send_signal(signal.SIGTERM)
+            try:
+                ctl.wait(timeout=30)
+            except subprocess.TimeoutExpired:
+                ctl.kill()
+    assert up.returncode == 0, up.stdout[-3000:] + p.report()
+    assert finished(up.stdout) == STEPS
+    ros2 = p.logs("ros2")
+    assert f"applied {STEPS} ROS 2 commands" in ros2, ros2[-3000:]
+    assert f"controller: answered {STEPS} steps" in (tmp_path / "controller.log").read_text()
 
 
 def _try(f: object) -> str:

@@ -32,7 +32,7 @@ from cdpr.ros2.cdr import CdrError, stamp
 from cdpr.tools.bench import ros2_controller
 from cdpr.tools.bench.ros2_messages import make_cache
 from cdpr_ros2.core import COMMANDS, PUBLISHED, Bridge, RosCommandError
-from conftest import CDPR, free_port, last_json_line
+from conftest import CDPR, COMPOSE, free_port, last_json_line
 from test_compose import Processes
 
 HERE = Path(__file__).resolve().parent
@@ -537,6 +537,74 @@ def test_free_running_unstamped_commands_apply_as_they_arrive(ros2_session: Sess
     assert s["command_age_p50"] <= 2  # the newest state's answer, acting at once
     assert s["rms_position_error"] < 1e-3, s
     assert "ros2" not in s["faults"], s["faults"]
+
+
+@pytest.mark.slow
+def test_the_compose_ros2_profile_runs_a_session_with_a_ros2_controller(sdk_env: dict[str, str], session_id: str,
+                                                                         tmp_path: Path) -> None:
+    """docker/compose.yaml's commands with `--profile ros2 --scale controller=0`, each a local process (as
+    tests/test_compose.py runs them), and a ROS 2 controller on the host reaching the router's port."""
+    from test_compose import SESSION_SERVICES, load_compose, localise
+
+    services = load_compose([COMPOSE], {"CDPR_SESSION": session_id, "CDPR_ARGS": "--duration 0.5"})
+    port = free_port()
+    names = ("router", *SESSION_SERVICES, "ros2")
+    containers = {n: localise(n, services[n], COMPOSE.parent, tmp_path, port) for n in names}
+    procs = Processes()
+    try:
+        for name in names:
+            c = containers[name]
+            procs.start(name, c.argv, c.cwd, c.log)
+        procs.procs["controller"] = subprocess.Popen(
+            [sys.executable, str(CONTROLLER), "--router-port", str(port)], cwd=tmp_path, env=sdk_env,
+            stdout=(tmp_path / "controller.log").open("wb"), stderr=subprocess.STDOUT)
+        procs.logs["controller"] = tmp_path / "controller.log"
+        codes = procs.wait(SESSION_SERVICES, timeout=180)
+        assert codes == dict.fromkeys(SESSION_SERVICES, 0), procs.report()
+        assert procs.wait(["ros2"], timeout=WAIT) == {"ros2": 0}, procs.report()
+    finally:
+        procs.close()
+    assert "finished 500 steps" in procs.log("clock"), procs.report()
+    assert "published 501 steps on ROS 2; applied 500 ROS 2 commands" in procs.log("ros2"), procs.report()
+
+
+def test_the_rclpy_example_s_law_gives_the_feedback_linearisation_wrench(scenario: object) -> None:
+    """examples/ros2/pd_controller.py (rclpy: not installable here) — its law, on the messages of a step as a
+    ROS 2 node receives them (rosbags' message classes have rclpy's field names): the cables' wrench W t is the
+    wrench of cdpr's feedback linearisation (no spin: no gyroscopic term), within the tension limits."""
+    import importlib.util
+    import json
+
+    from cdpr.mechanics.control import Gains, feedback_linearisation
+    from cdpr.mechanics.kinematics import inverse_kinematics
+    from cdpr.mechanics.rotation import matrix_to_quat, quat_to_matrix, rpy_to_matrix
+
+    path = HERE.parent / "examples" / "ros2" / "pd_controller.py"
+    spec = importlib.util.spec_from_file_location("pd_controller", path)
+    assert spec is not None
+    assert spec.loader is not None
+    example = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(example)
+    bridge = Bridge.from_scenario(scenario)  # type: ignore[arg-type]
+    info = json.loads(STORE.deserialize_cdr(bridge.info_message(), "std_msgs/msg/String").data)
+    q = matrix_to_quat(rpy_to_matrix(0.02, -0.01, 0.03))
+    state = State(7, 0.007, (0.5, 0.4, 0.6, *q), (0.1, -0.2, 0.05, 0.0, 0.0, 0.0), (2.0,) * 8, (10.0,) * 8)
+    setpoint = Setpoint(7, 0.007, (0.501, 0.3995, 0.601, *q), (0.1, -0.2, 0.051, 0.0, 0.0, 0.0),
+                        (0.3, 0.1, -0.2, 0.0, 0.0, 0.0))  # 1 mm off: a wrench the cables can give
+    msgs = dict(bridge.step_messages(state, setpoint))
+    read = {n: STORE.deserialize_cdr(msgs[n], PUBLISHED[n].ros_type)
+            for n in ("pose", "twist", "setpoint_pose", "setpoint_twist", "setpoint_accel")}
+    t = example.tensions(info, read["pose"], read["twist"], read["setpoint_pose"], read["setpoint_twist"],
+                         read["setpoint_accel"])
+    robot = bridge.robot
+    R = quat_to_matrix(np.array(state.pose[3:]))
+    W = inverse_kinematics(robot, np.array(state.pose[:3]), R).wrench_matrix
+    expected = feedback_linearisation(robot, state.pose[:3], R, state.twist, setpoint.pose[:3],
+                                      quat_to_matrix(np.array(setpoint.pose[3:])), setpoint.twist, setpoint.accel,
+                                      Gains.of(1500.0, 1500.0))
+    np.testing.assert_allclose(W @ t, expected, atol=0.05 + 1e-4 * np.abs(expected).max())
+    assert robot.tmin - 1e-9 <= t.min()
+    assert t.max() <= robot.tmax + 1e-9
 
 
 # --------------------------------------------------------------------------------------------------
