@@ -320,8 +320,9 @@ def test_a_ros2_controller_on_the_host_through_the_ros2_profile(project: list[Pr
     assert up.returncode == 0, up.stdout[-3000:] + p.report()
     assert finished(up.stdout) == STEPS
     ros2 = p.logs("ros2")
-    assert f"applied {STEPS} ROS 2 commands" in ros2, ros2[-3000:]
-    assert f"controller: answered {STEPS} steps" in (tmp_path / "controller.log").read_text()
+    applied = re.search(r"applied (\d+) ROS 2 commands", ros2)
+    assert applied, ros2[-3000:]
+    assert int(applied.group(1)) >= STEPS  # every step, and again any the clock asked for again
 
 
 def _try(f: object) -> str:

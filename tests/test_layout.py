@@ -21,6 +21,7 @@ ALLOWED = {
     "config": {"numpy", "pydantic", "yaml"},
     "protocol": {"numpy", "msgpack", "msgspec"},  # msgspec: the per-step messages' C-speed coding
     "runtime": {"numpy", "zenoh"},
+    "ros2": set(),  # ROS 2's wire format: the standard library only
     "recording": {"numpy", "rerun", "rerun_cli", "pyarrow",  # all three come with rerun-sdk
                   "foxglove", "orjson"},  # MCAP files and the live Foxglove server (cdpr.recording.mcap, .live)
 }

@@ -26,9 +26,10 @@ from cdpr.protocol import Keys
 from cdpr.protocol.pairing import Pairing
 from cdpr.ros2.graph import NodeName, data_key, endpoint_token, node_token, parse_token, qualify
 from cdpr.ros2.graph import attachment as make_attachment
+from cdpr.ros2.topics import COMMANDS, PUBLISHED
 from cdpr.runtime.service import Node, pair
 from cdpr.runtime.transport import PUBLISH_OPTS, Event, Inbox, log
-from cdpr_ros2.core import COMMANDS, PUBLISHED, Bridge, RosCommandError
+from cdpr_ros2.core import Bridge, RosCommandError
 
 
 class _RosPublisher:

@@ -28,13 +28,22 @@ def rrd_to_rosbag2(rrd: str | Path, out: str | Path, namespace: str = "/cdpr") -
     from rosbags.typesys import Stores, get_typestore
 
     from cdpr import recording
-    from cdpr.protocol import ProtocolError, State
+    from cdpr.mechanics.kinematics import cable_length_rates, inverse_kinematics
+    from cdpr.mechanics.rotation import quat_to_matrix
+    from cdpr.protocol import PROTOCOL_VERSION, ProtocolError
     from cdpr.protocol.session import robot_from_summary
     from cdpr.ros2 import messages as ros
     from cdpr.ros2.cdr import stamp
     from cdpr.ros2.graph import qualify
+    from cdpr.ros2.topics import (
+        PUBLISHED,
+        cable_names,
+        info_message,
+        sensor_messages,
+        setpoint_messages,
+        state_messages,
+    )
     from cdpr.tools.report import read_recording, state_columns
-    from cdpr_ros2.core import PUBLISHED, Bridge, cable_names
 
     src, dst = Path(rrd), Path(out)
     if dst.exists():
@@ -50,7 +59,6 @@ def rrd_to_rosbag2(rrd: str | Path, out: str | Path, namespace: str = "/cdpr") -
         output = info.get("controller", {}).get("output", "tensions")
     except (KeyError, TypeError, ValueError, AttributeError, ProtocolError) as exc:
         raise InputError(f"{src}: the session description lacks what a bag needs ({exc})") from None
-    bridge = Bridge(robot, output, info)
     names = cable_names(m)
     get = data.get
     k = get(recording.ACTUAL_POSITION).step
@@ -67,18 +75,22 @@ def rrd_to_rosbag2(rrd: str | Path, out: str | Path, namespace: str = "/cdpr") -
     except KeyError as exc:
         raise InputError(f"{src}: incomplete recording: no data for step {exc.args[0]}") from None
 
-    rows: list[tuple[int, str, bytes]] = [(0, "session_info", bridge.info_message())]  # (bag time ns, topic, payload)
+    # (bag time ns, topic, payload)
+    rows: list[tuple[int, str, bytes]] = [(0, "session_info", info_message({"v": PROTOCOL_VERSION, **info}, m))]
     for i, step in enumerate(k.tolist()):
-        state = State(step, step * dt, tuple(cols["pose"][i]), tuple(cols["twist"][i]),
-                      tuple(cols["cable_lengths"][i]), tuple(cols["tensions"][i]))
-        rows += [(_ns(state.t), name, payload) for name, payload in bridge.state_messages(state)]
+        pose, twist = cols["pose"][i], cols["twist"][i]
+        kin = inverse_kinematics(robot, pose[:3], quat_to_matrix(pose[3:]))
+        rows += [(_ns(step * dt), name, payload) for name, payload in state_messages(
+            step * dt, names, pose.tolist(), twist.tolist(), cols["cable_lengths"][i].tolist(),
+            cable_length_rates(kin, twist).tolist(), cols["tensions"][i].tolist())]
     for step, position, q in zip(desired.step.tolist(), desired.values, dq, strict=True):
-        rows.append((_ns(step * dt), "setpoint_pose", ros.pose_stamped(stamp(step * dt), "world", (*position, *q))))
+        rows += [(_ns(step * dt), name, payload)
+                 for name, payload in setpoint_messages(step * dt, (*position, *q), None, None)]
     for step, values in zip(feasible.step.tolist(), command_values.tolist(), strict=True):
         lengths, tensions = (values, []) if output == "lengths" else ([], values)
         rows.append((_ns(step * dt), "joint_commands", ros.joint_state(stamp(step * dt), names, lengths, [], tensions)))
     for step, e, c, a, g in zip(enc.step.tolist(), *sensors, strict=True):
-        rows += [(_ns(step * dt), name, payload) for name, payload in bridge.sensor_messages_of(step * dt, e, c, a, g)]
+        rows += [(_ns(step * dt), name, payload) for name, payload in sensor_messages(step * dt, names, e, c, a, g)]
     rows.sort(key=lambda r: r[0])  # a bag's messages in time order (stable: a step's topics keep theirs)
 
     topics = {name: (qualify(namespace, t.name), t.ros_type, t.qos.transient_local) for name, t in PUBLISHED.items()}
