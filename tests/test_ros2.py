@@ -377,6 +377,17 @@ def ros2_session(tmp_path: Path, sdk_env: dict[str, str], session_id: str) -> It
         s.close()
 
 
+def test_the_ros2_controller_imports_nothing_of_cdpr() -> None:
+    """The ROS 2 peer of these tests and of cdpr bench is what a ROS 2 user could write: zenoh-ros2-sdk, numpy and
+    the standard library, run as a script (it lives in the package only to be found by cdpr bench)."""
+    import ast
+
+    tree = ast.parse(CONTROLLER.read_text(encoding="utf-8"))
+    imported = {a.name.split(".")[0] for n in ast.walk(tree) if isinstance(n, ast.Import) for a in n.names}
+    imported |= {n.module.split(".")[0] for n in ast.walk(tree) if isinstance(n, ast.ImportFrom) and n.module}
+    assert imported - set(sys.stdlib_module_names) == {"numpy", "zenoh_ros2_sdk"}
+
+
 @pytest.mark.slow
 @pytest.mark.parametrize("unstamped", [False, True], ids=["joint_commands", "tension_commands"])
 def test_a_ros2_controller_runs_caroca_15kg_to_the_end(ros2_session: Session, unstamped: bool) -> None:

@@ -21,10 +21,12 @@ from pydantic import (
     model_validator,
 )
 
+from cdpr.config.camera import CameraSpec, check_rate
 from cdpr.config.loading import Strict, parse_model, read_yaml, resolve, shipped_names
 from cdpr.config.robot import load_robot
 from cdpr.config.trajectory import TrajectorySpec
 from cdpr.errors import InputError
+from cdpr.mechanics.camera import Camera
 from cdpr.mechanics.control import Gains, Variant
 from cdpr.mechanics.outputs import CommandKind
 from cdpr.mechanics.robot import GRAVITY, Robot
@@ -210,6 +212,8 @@ class SimSpec(Strict):
     substeps: int | None = Field(None, ge=1, description="sub-steps per dt in lengths mode (default: chosen "
                                  "for stability and accuracy from the cables' stiffness)")
     sensors: SensorsSpec | None = Field(None, description="publish simulated sensor readings on sim/sensors")
+    cameras: list[CameraSpec] = Field(default_factory=list, description="cameras (cdpr.config.camera): marker "
+                                      "measurements on sim/camera/<name> every frame")
     watchdog: WatchdogSpec = Field(default_factory=lambda: WatchdogSpec(),
                                    description="when commands stop coming (free-running realtime, lost commands)")
     command_latency: CommandLatencySpec | None = Field(None, description="a deterministic command latency "
@@ -220,6 +224,14 @@ class SimSpec(Strict):
     def _known_model(cls, v: str) -> str:
         if v not in CABLE_MODELS:
             raise ValueError(f"unknown cable model {v!r} (known: {', '.join(CABLE_MODELS)})")
+        return v
+
+    @field_validator("cameras")
+    @classmethod
+    def _distinct_cameras(cls, v: list[CameraSpec]) -> list[CameraSpec]:
+        names = [c.name for c in v]
+        if len(set(names)) != len(names):
+            raise ValueError(f"camera names must be distinct, got {names}")
         return v
 
     @model_validator(mode="after")
@@ -266,6 +278,8 @@ class ScenarioSpec(Strict):
         if self.controller.output == "lengths" and not self.sim.model.winch:
             raise ValueError(f"controller.output: lengths needs sim.cable_model {' or '.join(WINCH_MODELS)} "
                              f"(winch-driven cables), not {self.sim.cable_model}")
+        for camera in self.sim.cameras:
+            check_rate(camera, self.dt)
         latency, watchdog = self.sim.command_latency, self.sim.watchdog
         if latency is not None:
             most = latency.steps + latency.jitter
@@ -295,6 +309,7 @@ class Scenario:
     tda_options: dict[str, Any]
     cable_model: str
     spec: ScenarioSpec
+    cameras: tuple[Camera, ...] = ()
 
     @property
     def total_steps(self) -> int:
@@ -355,6 +370,9 @@ def scenario_from_spec(spec: ScenarioSpec, where: str, base_dir: Path | None = N
     steps = round(duration / spec.dt)
     if steps < 1:
         raise InputError(f"{where}: duration: shorter than one step of dt = {spec.dt}")
+    cameras = tuple(c.build(spec.dt) for c in spec.sim.cameras)
+    for camera in cameras:
+        check_markers_seen(camera, trajectory, duration, where)
     return Scenario(
         name=spec.name,
         description=spec.description,
@@ -371,7 +389,23 @@ def scenario_from_spec(spec: ScenarioSpec, where: str, base_dir: Path | None = N
         tda_options=dict(spec.controller.tda.options),
         cable_model=spec.sim.cable_model,
         spec=spec,
+        cameras=cameras,
     )
+
+
+def check_markers_seen(camera: Camera, trajectory: Trajectory, duration: float, where: str) -> None:
+    """Every marker of ``camera`` must be in its view somewhere along the trajectory (sampled every 0.1 s):
+    a marker it can never see is a mistake in the file (a mount pose, a sign, a frame)."""
+    seen = np.zeros(len(camera.markers), dtype=bool)
+    for t in np.linspace(0.0, duration, max(2, int(duration / 0.1) + 1)):
+        sample = trajectory.sample(float(t))
+        seen |= camera.observe(sample.position, sample.rotation).visible
+        if seen.all():
+            return
+    never = [camera.marker_ids[j] for j in np.flatnonzero(~seen)]
+    raise InputError(f"{where}: sim.cameras: camera {camera.name} never sees marker(s) {', '.join(never)} along the "
+                     "trajectory (behind the camera or outside its image: check the mount, the markers' frame and "
+                     "the intrinsics)")
 
 
 def load_scenario(name_or_path: str | Path, overrides: dict[str, Any] | None = None,

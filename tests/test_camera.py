@@ -1,0 +1,189 @@
+"""Cameras (cdpr.mechanics.camera, scenario sim.cameras): the projection against two independent computations —
+a pinhole with plumb_bob distortion written here point by point, and OpenCV's projectPoints — and the
+scenario file's checks."""
+
+from __future__ import annotations
+
+import math
+from pathlib import Path
+
+import cv2
+import numpy as np
+import pytest
+import yaml
+from hypothesis import assume, given, settings
+from hypothesis import strategies as st
+
+from cdpr.config.scenario import load_scenario
+from cdpr.errors import InputError
+from cdpr.mechanics.camera import Camera, Intrinsics, look_at, project
+from cdpr.mechanics.rotation import rpy_to_matrix
+
+SCENARIOS = Path(__file__).resolve().parent.parent / "shared" / "cdpr" / "scenarios"
+INTRINSICS = Intrinsics(610.0, 605.0, 322.5, 241.0, 640, 480, (-0.21, 0.08, 0.0012, -0.0007, -0.015))
+
+
+def pinhole(point: np.ndarray, position: np.ndarray, rotation: np.ndarray, k: Intrinsics) -> tuple[float, float]:
+    """One point, the textbook way: into the camera frame, divide by depth, distort, scale (OpenCV's model)."""
+    d = point - position
+    X = sum(rotation[i][0] * d[i] for i in range(3))
+    Y = sum(rotation[i][1] * d[i] for i in range(3))
+    Z = sum(rotation[i][2] * d[i] for i in range(3))
+    x, y = X / Z, Y / Z
+    k1, k2, t1, t2, k3 = k.distortion
+    r2 = x * x + y * y
+    radial = 1 + k1 * r2 + k2 * r2**2 + k3 * r2**3
+    xd = x * radial + 2 * t1 * x * y + t2 * (r2 + 2 * x * x)
+    yd = y * radial + t1 * (r2 + 2 * y * y) + 2 * t2 * x * y
+    return k.fx * xd + k.cx, k.fy * yd + k.cy
+
+
+def opencv(points: np.ndarray, position: np.ndarray, rotation: np.ndarray, k: Intrinsics) -> np.ndarray:
+    """OpenCV's projectPoints: the world-to-camera rotation as a Rodrigues vector, the translation."""
+    rvec, _ = cv2.Rodrigues(rotation.T)
+    tvec = -rotation.T @ position
+    out, _ = cv2.projectPoints(points.reshape(-1, 1, 3), rvec, tvec, k.matrix, np.array(k.distortion))
+    return out.reshape(-1, 2)
+
+
+def _scene(seed: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """A camera looking at a cloud of points around a target: some in front and in the image, some outside
+    it, some behind the camera."""
+    rng = np.random.default_rng(seed)
+    eye = rng.uniform(-2.0, 2.0, 3)
+    target = eye + rng.normal(size=3)
+    R = look_at(eye, target, up=(0.0, 0.0, 1.0) if abs(target[2] - eye[2]) < 0.9 else (1.0, 0.0, 0.0))
+    points = target + rng.normal(scale=0.8, size=(60, 3))
+    points[:10] = eye - (target - eye) * rng.uniform(0.5, 2.0, (10, 1))  # behind the camera
+    return eye, R, points
+
+
+@pytest.mark.parametrize("seed", range(8))
+def test_projection_agrees_with_a_pinhole_written_here_and_with_opencv(seed: int) -> None:
+    eye, R, points = _scene(seed)
+    got = project(points, eye, R, INTRINSICS)
+    depth = (points - eye) @ R[:, 2]
+    front = depth > 0
+    np.testing.assert_allclose(got.depth, depth, rtol=0, atol=1e-14)
+    assert not got.visible[~front].any()  # behind the camera: never visible
+    assert np.isnan(got.pixels[~front]).all()
+    mine = np.array([pinhole(p, eye, R, INTRINSICS) for p in points[front]])
+    cv = opencv(points[front], eye, R, INTRINSICS)
+    # to 1e-9 px wherever an image could be (within 10 000 px of it); beyond, where the distortion polynomial
+    # sends a point 1e15 px away, to the last digits (1e-12 relative)
+    near = (np.abs(mine) < 1e4).all(axis=1)
+    assert near.sum() >= 20
+    for other in (mine, cv):
+        np.testing.assert_allclose(got.pixels[front][near], other[near], rtol=0, atol=1e-9)
+        np.testing.assert_allclose(got.pixels[front][~near], other[~near], rtol=1e-12, atol=0)
+    u, v = mine[:, 0], mine[:, 1]
+    inside = (u >= 0) & (u < INTRINSICS.width) & (v >= 0) & (v < INTRINSICS.height)
+    np.testing.assert_array_equal(got.visible[front], inside)
+    assert inside.any()
+    assert (~inside).any()  # the scenes have points outside the image too
+
+
+def test_a_camera_on_the_platform_moves_with_it() -> None:
+    """A platform-mounted camera looking at world markers, against OpenCV with the composed pose; and a
+    frame-mounted camera looking at platform markers, against OpenCV with the carried points."""
+    p, Rp = np.array([0.3, -0.2, 1.1]), rpy_to_matrix(0.1, -0.05, 0.4)
+    mount_p, mount_R = np.array([0.0, 0.0, -0.25]), rpy_to_matrix(math.pi, 0.0, 0.0)  # looking down
+    targets = np.array([[0.2, -0.1, 0.0], [0.45, -0.1, 0.0], [0.3, -0.35, 0.0], [0.15, -0.3, 0.0]])
+    cam = Camera("down", INTRINSICS, True, mount_p, mount_R, targets, False, ("a", "b", "c", "d"), 10)
+    eye, R = p + Rp @ mount_p, Rp @ mount_R
+    seen = cam.observe(p, Rp)
+    assert seen.visible.all()
+    np.testing.assert_allclose(seen.pixels, opencv(targets, eye, R, INTRINSICS), rtol=0, atol=1e-9)
+
+    corners = np.array([[0.6, 0.3, 0.2], [-0.6, 0.3, 0.2], [-0.6, -0.3, 0.2], [0.6, -0.3, 0.2]])
+    top = Camera("top", INTRINSICS, False, np.array([0.0, 0.0, 3.4]), look_at((0, 0, 3.4), (0, 0, 0), (0, 1, 0)),
+                 corners, True, ("1", "2", "3", "4"), 10)
+    seen = top.observe(p, Rp)
+    np.testing.assert_allclose(seen.pixels, opencv(p + corners @ Rp.T, top.mount_position, top.mount_rotation,
+                                                   INTRINSICS), rtol=0, atol=1e-9)
+
+
+@settings(max_examples=200, deadline=None)
+@given(st.floats(-3, 3), st.floats(-3, 3), st.floats(-3, 3), st.floats(-3, 3), st.floats(-3, 3), st.floats(-3, 3))
+def test_look_at_points_the_optical_axis_at_the_target(ex: float, ey: float, ez: float, tx: float, ty: float,
+                                                       tz: float) -> None:
+    eye, target = np.array([ex, ey, ez]), np.array([tx, ty, tz])
+    d = target - eye
+    assume(np.linalg.norm(d) > 1e-3)
+    assume(np.linalg.norm(np.cross(d / np.linalg.norm(d), [0, 0, 1])) > 1e-6)  # not looking straight up or down
+    R = look_at(eye, target)
+    np.testing.assert_allclose(R.T @ R, np.eye(3), atol=1e-12)
+    assert np.linalg.det(R) == pytest.approx(1.0)
+    np.testing.assert_allclose(R[:, 2], d / np.linalg.norm(d), atol=1e-12)
+    assert R[2, 1] <= 1e-12  # the image's down (y) never points up: the horizon is level
+    seen = project(target[None], eye, R, Intrinsics(500, 500, 320, 240, 640, 480))
+    np.testing.assert_allclose(seen.pixels[0], [320, 240], atol=1e-9)  # the target at the principal point
+
+
+def test_look_at_refuses_what_has_no_answer() -> None:
+    with pytest.raises(ValueError, match="the target is the camera's own position"):
+        look_at((1, 2, 3), (1, 2, 3))
+    with pytest.raises(ValueError, match="looks along its up direction"):
+        look_at((0, 0, 3), (0, 0, 0))
+
+
+# --------------------------------------------------------------------------------------------------
+# The scenario file
+
+
+def _scenario(tmp_path: Path, camera: dict, **top: object) -> Path:
+    spec = yaml.safe_load((SCENARIOS / "caroca_15kg.yaml").read_text(encoding="utf-8"))
+    spec.setdefault("sim", {})["cameras"] = [camera]
+    spec.update(top)
+    path = tmp_path / "camera.yaml"
+    path.write_text(yaml.safe_dump(spec, sort_keys=False), encoding="utf-8")
+    return path
+
+
+TOP_CAMERA = {
+    "name": "top",
+    "mount": {"on": "frame", "position": [0.0, 0.0, 3.4], "look_at": [0.0, 0.0, 0.0], "up": [0.0, 1.0, 0.0]},
+    "intrinsics": {"fx": 600.0, "fy": 600.0, "cx": 320.0, "cy": 240.0, "width": 640, "height": 480},
+    "rate": 50.0,
+    "markers": {"frame": "platform", "points": [[0.6, 0.3, 0.2], [-0.6, 0.3, 0.2], [-0.6, -0.3, 0.2],
+                                                [0.6, -0.3, 0.2]]},
+}
+
+
+def test_a_scenario_with_a_camera_loads(tmp_path: Path) -> None:
+    sc = load_scenario(_scenario(tmp_path, TOP_CAMERA))
+    (cam,) = sc.cameras
+    assert (cam.name, cam.every, cam.on_platform, cam.markers_on_platform) == ("top", 20, False, True)
+    assert cam.marker_ids == ("m0", "m1", "m2", "m3")
+    seen = cam.observe(sc.initial_position, sc.initial_rotation)
+    assert seen.visible.all()
+    np.testing.assert_allclose(seen.depth, 3.4 - 0.2 - 0.2)  # the platform's top face, 3 m below
+
+
+@pytest.mark.parametrize(("change", "message"), [
+    ({"rate": 1500.0}, "rate 1500 Hz is above the sim's step rate 1/dt = 1000 Hz"),
+    ({"rate": 300.0}, "rate 300 Hz is not a frame every whole number of steps at dt = 0.001 s"),
+    ({"intrinsics": {**TOP_CAMERA["intrinsics"], "fx": 0.0}}, "a camera matrix with a zero or negative focal "
+                                                               "length is singular"),
+    ({"mount": {"on": "frame", "position": [0, 0, 3.4], "rpy": [0, 0, 0], "look_at": [0, 0, 0]}},
+     "give the camera's orientation as rpy or as look_at"),
+    ({"mount": {"on": "frame", "position": [0, 0, 3.4], "look_at": [0, 0, 0]}}, "looks along its up direction"),
+    ({"markers": {"points": [[0.6, 0.3, 0.2], [0.0, 0.0, 5.0]]}}, "camera top never sees marker(s) m1"),
+    ({"mount": {"on": "frame", "position": [0, 0, 3.4], "rpy": [0, 0, 0]}}, "never sees marker(s) m0, m1, m2, m3"),
+    ({"markers": {"points": [[0.6, 0.3]]}}, "point 0: expected [x, y, z]"),
+    ({"dropout": 1.0}, "dropout"),
+])
+def test_bad_camera_configurations_say_what_is_wrong(tmp_path: Path, change: dict, message: str) -> None:
+    with pytest.raises(InputError, match=r"sim\.cameras") as err:
+        load_scenario(_scenario(tmp_path, {**TOP_CAMERA, **change}))
+    assert message in str(err.value)
+    assert "\n" not in str(err.value)
+
+
+def test_two_cameras_need_two_names(tmp_path: Path) -> None:
+    path = _scenario(tmp_path, TOP_CAMERA)
+    spec = yaml.safe_load(path.read_text())
+    spec["sim"]["cameras"].append(TOP_CAMERA)
+    path.write_text(yaml.safe_dump(spec))
+    with pytest.raises(InputError, match="camera names must be distinct"):
+        load_scenario(path)
