@@ -17,7 +17,7 @@ from hypothesis import strategies as st
 from cdpr.config.scenario import load_scenario
 from cdpr.errors import InputError
 from cdpr.mechanics.camera import Camera, Intrinsics, look_at, project
-from cdpr.mechanics.rotation import rpy_to_matrix
+from cdpr.mechanics.rotation import quat_matrix, rpy_to_matrix
 
 SCENARIOS = Path(__file__).resolve().parent.parent / "shared" / "cdpr" / "scenarios"
 INTRINSICS = Intrinsics(610.0, 605.0, 322.5, 241.0, 640, 480, (-0.21, 0.08, 0.0012, -0.0007, -0.015))
@@ -142,7 +142,7 @@ def _scenario(tmp_path: Path, camera: dict, **top: object) -> Path:
 
 TOP_CAMERA = {
     "name": "top",
-    "mount": {"on": "frame", "position": [0.0, 0.0, 3.4], "look_at": [0.0, 0.0, 0.0], "up": [0.0, 1.0, 0.0]},
+    "mount": {"body": "frame", "position": [0.0, 0.0, 3.4], "look_at": [0.0, 0.0, 0.0], "up": [0.0, 1.0, 0.0]},
     "intrinsics": {"fx": 600.0, "fy": 600.0, "cx": 320.0, "cy": 240.0, "width": 640, "height": 480},
     "rate": 50.0,
     "markers": {"frame": "platform", "points": [[0.6, 0.3, 0.2], [-0.6, 0.3, 0.2], [-0.6, -0.3, 0.2],
@@ -165,11 +165,11 @@ def test_a_scenario_with_a_camera_loads(tmp_path: Path) -> None:
     ({"rate": 300.0}, "rate 300 Hz is not a frame every whole number of steps at dt = 0.001 s"),
     ({"intrinsics": {**TOP_CAMERA["intrinsics"], "fx": 0.0}}, "a camera matrix with a zero or negative focal "
                                                                "length is singular"),
-    ({"mount": {"on": "frame", "position": [0, 0, 3.4], "rpy": [0, 0, 0], "look_at": [0, 0, 0]}},
+    ({"mount": {"body": "frame", "position": [0, 0, 3.4], "rpy": [0, 0, 0], "look_at": [0, 0, 0]}},
      "give the camera's orientation as rpy or as look_at"),
-    ({"mount": {"on": "frame", "position": [0, 0, 3.4], "look_at": [0, 0, 0]}}, "looks along its up direction"),
+    ({"mount": {"body": "frame", "position": [0, 0, 3.4], "look_at": [0, 0, 0]}}, "looks along its up direction"),
     ({"markers": {"points": [[0.6, 0.3, 0.2], [0.0, 0.0, 5.0]]}}, "camera top never sees marker(s) m1"),
-    ({"mount": {"on": "frame", "position": [0, 0, 3.4], "rpy": [0, 0, 0]}}, "never sees marker(s) m0, m1, m2, m3"),
+    ({"mount": {"body": "frame", "position": [0, 0, 3.4], "rpy": [0, 0, 0]}}, "never sees marker(s) m0, m1, m2, m3"),
     ({"markers": {"points": [[0.6, 0.3]]}}, "point 0: expected [x, y, z]"),
     ({"dropout": 1.0}, "dropout"),
 ])
@@ -187,3 +187,107 @@ def test_two_cameras_need_two_names(tmp_path: Path) -> None:
     path.write_text(yaml.safe_dump(spec))
     with pytest.raises(InputError, match="camera names must be distinct"):
         load_scenario(path)
+
+
+# --------------------------------------------------------------------------------------------------
+# The sim's frames
+
+
+CAMERA_SCENARIO = Path(__file__).resolve().parent / "scenarios" / "caroca_15kg_camera.yaml"
+
+
+def _camera(**changes: object) -> Camera:
+    from dataclasses import replace
+
+    (cam,) = load_scenario(CAMERA_SCENARIO).cameras
+    return replace(cam, **changes)
+
+
+def test_frames_come_at_the_rate_after_the_latency_and_are_deterministic() -> None:
+    from cdpr_sim.cameras import CameraSuite
+
+    cam = _camera(pixel_sigma=0.5, dropout=0.2)
+    p, R = np.array([0.9, 0.9, 0.2]), np.eye(3)
+    runs = []
+    for _ in range(2):
+        suite = CameraSuite((cam,), seed=3)
+        out = {k: suite.step(k, k * 0.001, p, R) for k in range(0, 100)}
+        runs.append(out)
+        assert [k for k, frames in out.items() if frames] == [3, 23, 43, 63, 83]  # every 20 steps, 3 late
+        assert [f.step for k in (3, 23) for f in out[k]] == [0, 20]
+    assert runs[0] == runs[1]  # a function of the seed, the camera and the step
+
+
+def test_noise_and_dropout_have_their_statistics() -> None:
+    from cdpr_sim.cameras import measure
+
+    cam = _camera(pixel_sigma=0.5, dropout=0.2)
+    p, R = np.array([0.9, 0.9, 0.2]), np.eye(3)
+    truth = cam.observe(p, R)
+    errors, kept = [], 0
+    for k in range(0, 4000, 20):
+        f = measure(cam, 0, 11, k, k * 0.001, p, R)
+        kept += len(f.ids)
+        for i, name in enumerate(f.ids):
+            j = cam.marker_ids.index(name)
+            errors.append(np.array(f.pixels[2 * i:2 * i + 2]) - truth.pixels[j])
+            assert f.depth[i] == truth.depth[j]
+    e = np.array(errors)
+    assert abs(kept / (200 * 4) - 0.8) < 0.05  # 20 % dropped: 800 draws, 4.3 sigma of the binomial
+    assert abs(e.std() - 0.5) < 0.05
+    assert abs(e.mean()) < 0.05
+    exact = measure(_camera(), 0, 11, 0, 0.0, p, R)  # no noise, no dropout: the projection itself
+    assert exact.ids == cam.marker_ids
+    np.testing.assert_array_equal(np.array(exact.pixels).reshape(-1, 2), truth.pixels)
+
+
+@pytest.mark.slow
+def test_a_session_publishes_each_frame_of_what_the_camera_saw(session_id: str, tmp_path: Path) -> None:
+    """The sim's frames on sim/camera/top: every 20th step, 3 steps late, and each the projection of that step's
+    state (no noise in this scenario)."""
+    import subprocess
+
+    import zenoh
+
+    from cdpr.protocol import CameraFrame, Keys, State
+    from conftest import CDPR, free_port, last_json_line
+
+    port = free_port()
+    endpoint = f"tcp/127.0.0.1:{port}"
+    up = subprocess.Popen([*CDPR, "up", str(CAMERA_SCENARIO), "--session", session_id, "--without", "controller",
+                           "--listen", endpoint, "--duration", "0.3", "--quiet"],
+                          stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    frames: list[CameraFrame] = []
+    states: dict[int, State] = {}
+    conf = zenoh.Config()
+    conf.insert_json5("mode", '"client"')
+    conf.insert_json5("connect/endpoints", f'["{endpoint}"]')
+    conf.insert_json5("connect/timeout_ms", '{"client": 30000}')
+    try:
+        with zenoh.open(conf) as z:
+            keys = Keys(session_id)
+            z.declare_subscriber(keys.topic("camera"),
+                                 lambda s: frames.append(CameraFrame.decode(s.payload.to_bytes())))
+            z.declare_subscriber(keys.state, lambda s: states.setdefault(*(lambda st: (st.step, st))(
+                State.decode(s.payload.to_bytes()))))
+            # the session waits for its controller: nothing is published before these subscribers exist
+            ctl = subprocess.run([*CDPR, "controller", str(CAMERA_SCENARIO), "--session", session_id, "--duration",
+                                  "0.3", "--zenoh-mode", "client", "--connect", endpoint],
+                                 capture_output=True, text=True, timeout=120)
+            out, err = up.communicate(timeout=120)
+    finally:
+        if up.poll() is None:
+            up.kill()
+    assert ctl.returncode == 0, ctl.stderr[-2000:]
+    assert last_json_line(out)["exit_ok"], err[-3000:]
+    (cam,) = load_scenario(CAMERA_SCENARIO).cameras
+    got = sorted({f.step: f for f in frames}.values(), key=lambda f: f.step)
+    assert [f.step for f in got] == list(range(0, 300, 20))  # the last frame's state (300) is the session's end
+    assert all(f.camera == "top" for f in frames)
+    for f in got:
+        st = states[f.step]
+        R = np.array(quat_matrix(*st.pose[3:]))
+        truth = cam.observe(st.pose[:3], R)
+        assert f.ids == ("c1", "c2", "c3", "c4")
+        np.testing.assert_allclose(np.array(f.pixels).reshape(-1, 2), truth.pixels, rtol=0, atol=1e-9)
+        assert f.t == pytest.approx(f.step * 0.001)

@@ -34,9 +34,11 @@ import zenoh
 from msgspec.structs import replace
 
 from cdpr.config.scenario import Scenario
+from cdpr.mechanics.rotation import quat_matrix
 from cdpr.protocol import TELEMETRY_EVERY, TELEMETRY_PERIOD, Command, Keys, Resume, Sensors, State, Telemetry, Tick
 from cdpr.runtime.service import Node, sleep_precisely
 from cdpr.runtime.transport import Event, Inbox, log
+from cdpr_sim.cameras import CameraSuite
 from cdpr_sim.hold import Applied, CommandHold, LatencyModel, StaticPolicy
 from cdpr_sim.models import make_sim
 from cdpr_sim.sensors import SensorConfig, SensorSuite
@@ -67,6 +69,9 @@ class SimNode(Node):
         self.sensors = None if sensors is None else SensorSuite(SensorConfig.from_spec(sensors, self.m),
                                                                   scenario.dt)
         self._sensors_pub: zenoh.Publisher | None = None
+        seed = 0 if sensors is None else sensors.seed
+        self.cameras = CameraSuite(scenario.cameras, seed) if scenario.cameras else None
+        self._camera_pubs: dict[str, zenoh.Publisher] = {}
         self._telemetry_pub: zenoh.Publisher | None = None
         self.flushed_at = time.monotonic()
         self.block_states: list[State] = []
@@ -96,7 +101,9 @@ class SimNode(Node):
     def declare(self, session: zenoh.Session, inbox: Inbox) -> list[Any]:
         self._pub, self._telemetry_pub = self.publishers["state"], self.publishers["telemetry"]
         self._sensors_pub = self.publishers["sensors"]
-        return []
+        for cam in self.scenario.cameras:  # one key per camera: sim/camera/<name>
+            self._camera_pubs[cam.name] = session.declare_publisher(self.keys.topic("camera", cam.name))
+        return list(self._camera_pubs.values())
 
     def handle(self, event: Event) -> None:
         if event.topic == "tick":
@@ -134,6 +141,10 @@ class SimNode(Node):
             self.block_sensors.append(reading)
             if self._sensors_pub is not None:  # for an estimator or a monitor (Zenoh drops it if nobody listens)
                 self._sensors_pub.put(reading.encode())
+        if self.cameras is not None:
+            pose = msg.pose
+            for frame in self.cameras.step(self.step, msg.t, pose[:3], quat_matrix(*pose[3:])):
+                self._camera_pubs[frame.camera].put(frame.encode())
 
     def flush(self) -> None:
         """Send the telemetry block (with the current state again if nothing is new: a heartbeat)."""

@@ -38,7 +38,7 @@ class IntrinsicsSpec(Strict):
 
 
 class MountSpec(Strict):
-    on: Literal["frame", "platform"] = Field(description="frame: fixed in the world; platform: carried by it")
+    body: Literal["frame", "platform"] = Field(description="frame: fixed in the world; platform: carried by it")
     position: Vec3 = Field(min_length=3, max_length=3, description="m, in the world or the platform's body frame")
     rpy: Vec3 | None = Field(None, min_length=3, max_length=3, description="rad: R = Rz(yaw) Ry(pitch) Rx(roll) "
                              "of the camera frame (z forward, x right, y down)")
@@ -107,7 +107,7 @@ class CameraSpec(Strict):
         return Camera(
             name=self.name,
             intrinsics=Intrinsics(i.fx, i.fy, i.cx, i.cy, i.width, i.height, (k1, k2, t1, t2, k3)),
-            on_platform=self.mount.on == "platform",
+            on_platform=self.mount.body == "platform",
             mount_position=np.array(self.mount.position, dtype=float),
             mount_rotation=self.mount.rotation(),
             markers=np.array(self.markers.points, dtype=float).reshape(n, 3),

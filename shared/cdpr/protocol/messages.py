@@ -43,6 +43,9 @@ SESSION_RE = re.compile(r"^[A-Za-z0-9_-]{1,64}$")
 SERVICES = tuple(WIRING)
 
 
+_PLACEHOLDER = re.compile(r"\{(node|camera)\}")  # where a topic's key names its node, or a camera
+
+
 class ProtocolError(ValueError):
     """A payload that does not follow the protocol; the message names the offending field."""
 
@@ -88,9 +91,10 @@ class Keys:
 
     def topic(self, name: str, publisher: str | None = None) -> str:
         """The key of topic ``name`` (a :data:`cdpr.protocol.wiring.TOPICS` name): a topic with one key per
-        node (``stats``, ``alive``, ``ping``) is ``stats/{publisher}`` to publish on, ``stats/*`` to subscribe to."""
+        node (``stats``, ``alive``, ``ping``) or per camera (``camera``) is ``stats/{publisher}`` to publish on,
+        ``stats/*`` to subscribe to."""
         key = TOPICS[name].key
-        return f"{self.prefix}/{key.replace('{node}', publisher or '*')}"
+        return f"{self.prefix}/{_PLACEHOLDER.sub(publisher or '*', key)}"
 
     def table(self) -> dict[str, str]:
         """Topic name → key expression (``{service}`` where a node's name goes), for documentation and tests."""
@@ -822,6 +826,41 @@ class ServiceStats:
         ):
             raise ProtocolError("counters: expected a map of names to non-negative integers")
         return cls(service, counters)
+
+
+@dataclass(frozen=True, slots=True)
+class CameraFrame:
+    """``sim/camera/{camera}``: the markers a camera of the scenario saw in one frame (docs/protocol.md).
+
+    ``step``/``t``: the frame's exposure (it goes out ``latency_steps`` later); ``ids``: the markers seen, in
+    the scenario's order (not in front of the camera, outside the image or dropped: absent); ``pixels``:
+    their ``u, v`` image coordinates, flat (OpenCV's convention: origin at the top-left pixel's corner, ``u``
+    right, ``v`` down); ``depth``: their distance along the optical axis (m, the truth). The camera's
+    intrinsics and distortion are in ``session/info`` (``sim.cameras``).
+    """
+
+    camera: str
+    step: int
+    t: float
+    ids: tuple[str, ...]
+    pixels: tuple[float, ...]
+    depth: tuple[float, ...]
+
+    def encode(self) -> bytes:
+        return pack({"camera": self.camera, "step": self.step, "t": self.t, "ids": list(self.ids),
+                     "pixels": list(self.pixels), "depth": list(self.depth)})
+
+    @classmethod
+    def decode(cls, payload: bytes) -> CameraFrame:
+        msg = unpack(payload)
+        camera = _field(msg, "camera")
+        if not isinstance(camera, str) or not camera:
+            raise ProtocolError(f"camera: expected the camera's name, got {camera!r}")
+        ids = _field(msg, "ids")
+        if not isinstance(ids, list) or not all(isinstance(i, str) for i in ids):
+            raise ProtocolError("ids: expected a list of marker names")
+        return cls(camera, _int(msg, "step"), _float(msg, "t"), tuple(ids), _vector(msg, "pixels", 2 * len(ids)),
+                   _vector(msg, "depth", len(ids)))
 
 
 ClockState = Literal["waiting", "running", "paused", "finished", "aborted"]

@@ -34,7 +34,8 @@ def session_info(scenario: Scenario) -> dict[str, Any]:
         "robot": scenario.robot.summary(),
         "sim": {"cable_model": scenario.cable_model,
                 **({} if (params := scenario.spec.sim.cable_params) is None
-                   else {scenario.cable_model: params.model_dump()})},
+                   else {scenario.cable_model: params.model_dump()}),
+                **({"cameras": [c.model_dump() for c in cams]} if (cams := scenario.spec.sim.cameras) else {})},
         "controller": {
             "output": scenario.output,
             "variant": scenario.variant,

@@ -35,6 +35,8 @@ TOPICS: dict[str, Topic] = {
     "command": Topic("controller/command", "Command", "bad_commands"),
     "telemetry": Topic("sim/telemetry", "Telemetry", "bad_telemetry"),
     "sensors": Topic("sim/sensors", "Sensors", "bad_sensors"),
+    # one key per camera of the scenario (sim.cameras): the node declares them itself (cdpr_sim.node)
+    "camera": Topic("sim/camera/{camera}", "CameraFrame", "bad_camera_frames"),
     "info": Topic("session/info", "SessionInfo", transport="queryable"),
     "resume": Topic("session/resume", "Resume", "bad_resume"),
     "stats": Topic("stats/{node}", "ServiceStats", "bad_stats"),
@@ -54,7 +56,8 @@ EVERY_NODE = NodeWiring(subscribes=("status",), publishes=("stats", "alive", "pi
 
 WIRING: dict[str, NodeWiring] = {
     "clock": NodeWiring(subscribes=("telemetry", "stats"), publishes=("tick", "status", "info", "resume")),
-    "sim": NodeWiring(subscribes=("tick", "command", "resume"), publishes=("state", "telemetry", "sensors")),
+    "sim": NodeWiring(subscribes=("tick", "command", "resume"),
+                      publishes=("state", "telemetry", "sensors", "camera")),
     "trajectory": NodeWiring(subscribes=("tick",), publishes=("setpoints",)),
     "controller": NodeWiring(subscribes=("state", "setpoints"), publishes=("command",)),
     "recorder": NodeWiring(subscribes=("telemetry", "setpoints"), publishes=()),

@@ -371,7 +371,7 @@ def declare_topics(node: Node, session: zenoh.Session, inbox: Inbox) -> list[Any
                 query.reply(query.key_expr, node.reply(topic))
 
             keep.append(session.declare_queryable(keys.topic(topic), on_query))
-        else:
+        elif "{" not in TOPICS[topic].key:  # a key per instance (sim/camera/<name>): the node declares them
             node.publishers[topic] = session.declare_publisher(keys.topic(topic, node.name), **PUBLISH_OPTS)
     keep.extend(node.publishers.values())
     keep.extend(inbox.subscribe(session, keys.topic(topic), topic) for topic in node.subscribes)
