@@ -291,3 +291,48 @@ def test_a_session_publishes_each_frame_of_what_the_camera_saw(session_id: str, 
         assert f.ids == ("c1", "c2", "c3", "c4")
         np.testing.assert_allclose(np.array(f.pixels).reshape(-1, 2), truth.pixels, rtol=0, atol=1e-9)
         assert f.t == pytest.approx(f.step * 0.001)
+
+
+@pytest.mark.slow
+def test_the_recording_holds_each_camera_and_what_it_saw(tmp_path: Path) -> None:
+    """The .rrd of a camera session (in-process), read back: the pinhole and its mount, and the labelled 2D
+    points of every frame, equal to the projection of the recorded state of that step."""
+    import subprocess
+
+    from rerun.chunk import RrdReader
+
+    from cdpr import recording
+    from cdpr.tools.report import read_recording, state_columns
+    from conftest import CDPR, last_json_line
+
+    rrd = tmp_path / "cam.rrd"
+    run = subprocess.run([*CDPR, "run", str(CAMERA_SCENARIO), "--duration", "0.3", "--in-process", "--quiet",
+                          "--rrd", str(rrd)], capture_output=True, text=True, timeout=300)
+    assert run.returncode == 0, run.stderr[-2000:]
+    assert last_json_line(run.stdout)["exit_ok"]
+    entity = "/" + recording.camera_entity(load_scenario(CAMERA_SCENARIO).cameras[0])
+    assert entity == "/world/cameras/top"
+    static: dict[str, object] = {}
+    points: dict[int, tuple[list, list]] = {}
+    for chunk in RrdReader(str(rrd)).stream().to_chunks():
+        rb = chunk.to_record_batch()
+        if chunk.entity_path == entity and chunk.is_static:
+            static.update({name: rb.column(name).to_pylist()[0] for name in rb.schema.names})
+        elif chunk.entity_path == entity + "/markers":
+            for step, xy, labels in zip(rb.column("step").to_pylist(), rb.column("Points2D:positions").to_pylist(),
+                                        rb.column("Points2D:labels").to_pylist(), strict=True):
+                points[step] = (xy, labels)
+    (cam,) = load_scenario(CAMERA_SCENARIO).cameras
+    np.testing.assert_allclose(np.array(static["Pinhole:image_from_camera"]).reshape(3, 3).T, cam.intrinsics.matrix)
+    np.testing.assert_array_equal(np.ravel(static["Pinhole:resolution"]), [640.0, 480.0])
+    np.testing.assert_allclose(np.ravel(static["Transform3D:translation"]), [0.0, 0.0, 3.4])
+    assert sorted(points) == list(range(0, 300, 20))
+    data = read_recording(rrd)
+    k = data.get(recording.ACTUAL_POSITION).step
+    cols = state_columns(data, k, 8)
+    for step, (xy, labels) in points.items():
+        i = int(np.flatnonzero(k == step)[0])
+        pose = cols["pose"][i]
+        truth = cam.observe(pose[:3], quat_matrix(*pose[3:]))
+        assert labels == ["c1", "c2", "c3", "c4"]
+        np.testing.assert_allclose(np.array(xy), truth.pixels, rtol=0, atol=1e-3)  # stored as float32

@@ -26,7 +26,7 @@ import rerun as rr
 from cdpr import recording
 from cdpr.config.scenario import Scenario
 from cdpr.errors import InputError
-from cdpr.protocol import Keys, ProtocolError, Setpoints, Status, Telemetry
+from cdpr.protocol import CameraFrame, Keys, ProtocolError, Setpoints, Status, Telemetry
 from cdpr.protocol.session import session_info
 from cdpr.protocol.streams import STATE, STATE_COLUMNS
 from cdpr.runtime.options import RECORDER_OPTIONS, add_options
@@ -81,6 +81,9 @@ class RecorderNode(Node):
         self.finish_by: float | None = None  # set when the clock has finished, until the final state is in
         self.closed = False
         self.tension_peak = 0.0  # highest applied tension seen: sets the tension plot's range at the end
+        self.cameras = {c.name: c for c in scenario.cameras}
+        self.frames: dict[str, dict[int, CameraFrame]] = {name: {} for name in self.cameras}  # not sent yet, by step
+        self.frames_sent: dict[str, int] = dict.fromkeys(self.cameras, -1)  # the last step sent, per camera
         self.recording_id = recording.recording_id(keys.session)
         times = np.linspace(0.0, scenario.duration, PLANNED_PATH_POINTS)
         self.planned_path = [scenario.trajectory.sample(float(t)).position for t in times]
@@ -90,7 +93,8 @@ class RecorderNode(Node):
         try:
             if rerun:
                 self.rec = recording.Recording(
-                    self.recording_id, rrd=rrd, spawn=spawn, viewer=viewer, blueprint=recording.blueprint()
+                    self.recording_id, rrd=rrd, spawn=spawn, viewer=viewer,
+                    blueprint=recording.blueprint(cameras=scenario.cameras),
                 )
                 self._log_static()
             if mcap or foxglove is not None:
@@ -141,10 +145,18 @@ class RecorderNode(Node):
         recording.log_scene(rec, self.robot)
         recording.log_series_styles(rec, self.m)
         recording.log_planned_path(rec, self.planned_path)
+        recording.log_cameras(rec, self.scenario.cameras)
 
     def handle(self, event: Event) -> None:
         core = self.core
         try:
+            if event.topic == "camera":
+                frame = CameraFrame.decode(event.payload)
+                if frame.camera not in self.cameras:
+                    raise ProtocolError(f"camera: {frame.camera!r} is not a camera of this scenario")
+                if frame.step > self.frames_sent[frame.camera]:  # a frame sent again (a resend): kept once
+                    self.frames[frame.camera].setdefault(frame.step, frame)
+                return
             if event.topic == "telemetry":
                 block = Telemetry.decode(event.payload, self.m)
                 for state in block.states:
@@ -310,6 +322,19 @@ class RecorderNode(Node):
             recording.send_scalars(rec, recording.SENSOR_ACCEL, r.step, r.t, r.accel)
             recording.send_scalars(rec, recording.SENSOR_GYRO, r.step, r.t, r.gyro)
         recording.send_path(rec, b.path.step, b.path.t, b.path.points)
+        self.send_frames()
+
+    def send_frames(self) -> None:
+        """Each camera's frames received since the last batch, as labelled 2D points at their exposure step."""
+        assert self.rec is not None
+        for name, frames in self.frames.items():
+            if not frames:
+                continue
+            rows = [frames[k] for k in sorted(frames)]
+            recording.send_camera_frames(self.rec, self.cameras[name], [f.step for f in rows], [f.t for f in rows],
+                                         [f.pixels for f in rows], [f.ids for f in rows])
+            self.frames_sent[name] = rows[-1].step
+            frames.clear()
 
     def close(self) -> None:
         if self.closed:
@@ -319,7 +344,8 @@ class RecorderNode(Node):
         try:
             self.flush(final=True)
             if self.rec is not None and self.tension_peak > 0.0:
-                self.rec.send_blueprint(recording.blueprint(tension_range=(0.0, 1.15 * self.tension_peak)))
+                self.rec.send_blueprint(recording.blueprint(tension_range=(0.0, 1.15 * self.tension_peak),
+                                                            cameras=self.scenario.cameras))
         finally:
             self._close_sinks()
         took = time.monotonic() - closing

@@ -36,7 +36,7 @@ TOPICS: dict[str, Topic] = {
     "telemetry": Topic("sim/telemetry", "Telemetry", "bad_telemetry"),
     "sensors": Topic("sim/sensors", "Sensors", "bad_sensors"),
     # one key per camera of the scenario (sim.cameras): the node declares them itself (cdpr_sim.node)
-    "camera": Topic("sim/camera/{camera}", "CameraFrame", "bad_camera_frames"),
+    "camera": Topic("sim/camera/{camera}", "CameraFrame", "bad_camera"),
     "info": Topic("session/info", "SessionInfo", transport="queryable"),
     "resume": Topic("session/resume", "Resume", "bad_resume"),
     "stats": Topic("stats/{node}", "ServiceStats", "bad_stats"),
@@ -60,7 +60,7 @@ WIRING: dict[str, NodeWiring] = {
                       publishes=("state", "telemetry", "sensors", "camera")),
     "trajectory": NodeWiring(subscribes=("tick",), publishes=("setpoints",)),
     "controller": NodeWiring(subscribes=("state", "setpoints"), publishes=("command",)),
-    "recorder": NodeWiring(subscribes=("telemetry", "setpoints"), publishes=()),
+    "recorder": NodeWiring(subscribes=("telemetry", "setpoints", "camera"), publishes=()),
     # the session on ROS 2's wire (rmw_zenoh); "command" only while a ROS 2 controller is there (docs/ros2.md)
     "ros2": NodeWiring(subscribes=("tick", "state", "setpoints", "sensors"), publishes=("command",)),
 }

@@ -24,6 +24,7 @@ import rerun.blueprint as rrb
 from numpy.typing import ArrayLike, NDArray
 
 from cdpr.errors import InputError
+from cdpr.mechanics.camera import Camera
 from cdpr.mechanics.robot import Robot
 from cdpr.mechanics.rotation import matrix_to_quat, quat_matrix
 from cdpr.protocol.streams import (
@@ -59,6 +60,9 @@ PATH = "world/path"  # line strip of the travelled path (path rate)
 PLANNED_PATH = "world/planned_path"  # static line strip of the trajectory, sampled
 WORKSPACE_FEASIBLE = "world/workspace/feasible"  # static points: wrench-feasible grid points (cdpr workspace)
 WORKSPACE_INFEASIBLE = "world/workspace/infeasible"  # static faint points: the other grid points
+CAMERAS = "world/cameras"  # a frame-mounted camera: world/cameras/<name> (static Transform3D + Pinhole)
+PLATFORM_CAMERAS = "world/platform/cameras"  # a platform-mounted one: moves with the platform
+CAMERA_MARKERS = "markers"  # <camera>/markers: the 2D points it saw, labelled with the markers' ids (per frame)
 
 # Time series (every step)
 DESIRED_POSITION = "desired/position"  # [x, y, z] of the setpoint, m
@@ -250,9 +254,37 @@ class Recording:
         return problems
 
 
-def blueprint(tension_range: tuple[float, float] | None = None) -> rrb.Blueprint:
+def camera_entity(camera: Camera) -> str:
+    """Where a camera lives in the scene: under the platform's transform when it rides on it."""
+    return f"{PLATFORM_CAMERAS if camera.on_platform else CAMERAS}/{camera.name}"
+
+
+def log_cameras(rec: Recording, cameras: Sequence[Camera]) -> None:
+    """Each camera as its mount transform and a pinhole (the frustum in the 3D view, its own 2D view)."""
+    for cam in cameras:
+        path, k = camera_entity(cam), cam.intrinsics
+        rec.log(path, rr.Transform3D(translation=cam.mount_position, mat3x3=cam.mount_rotation), static=True)
+        rec.log(path, rr.Pinhole(image_from_camera=k.matrix, resolution=[k.width, k.height],
+                                 camera_xyz=rr.ViewCoordinates.RDF, image_plane_distance=0.3), static=True)
+
+
+def send_camera_frames(rec: Recording, camera: Camera, steps: ArrayLike, times: ArrayLike,
+                       pixels: Sequence[ArrayLike], ids: Sequence[Sequence[str]]) -> None:
+    """A camera's frames: at each frame's step, the markers it saw as labelled 2D points (one call for all)."""
+    if not len(np.asarray(steps)):
+        return
+    counts = [len(i) for i in ids]
+    flat = np.concatenate([np.asarray(p, dtype=float).reshape(-1, 2) for p in pixels]) if sum(counts) else \
+        np.zeros((0, 2))
+    labels = [label for frame in ids for label in frame]
+    rec.send_columns(f"{camera_entity(camera)}/{CAMERA_MARKERS}", time_columns(steps, times),
+                     rr.Points2D.columns(positions=flat, labels=labels).partition(counts))
+
+
+def blueprint(tension_range: tuple[float, float] | None = None, cameras: Sequence[Camera] = ()) -> rrb.Blueprint:
     """The default layout: the 3D scene beside the paper's Fig. 2/3 four panels (desired position,
-    actual position, position error, cable tensions), with more plots in tabs under the scene.
+    actual position, position error, cable tensions), with more plots in tabs under the scene, and what
+    each camera sees (a 2D view per camera) beside the scene.
 
     ``tension_range`` fixes the tension plot's y axis (the recorder sends the layout again at the end
     with the range the tensions used, so that a tmax far above them does not squash the curves)."""
@@ -277,9 +309,13 @@ def blueprint(tension_range: tuple[float, float] | None = None) -> rrb.Blueprint
         rrb.TimeSeriesView(origin=CLOCK, name="Clock"),
         rrb.TextLogView(origin="/", name="Events"),
     )
+    scene: rrb.Container | rrb.View = rrb.Spatial3DView(origin=WORLD, name="Scene")
+    if cameras:
+        scene = rrb.Horizontal(scene, rrb.Vertical(*(rrb.Spatial2DView(origin=camera_entity(c), name=f"Camera {c.name}")
+                                                     for c in cameras)), column_shares=[2, 1])
     return rrb.Blueprint(
         rrb.Horizontal(
-            rrb.Vertical(rrb.Spatial3DView(origin=WORLD, name="Scene"), more, row_shares=[3, 2]),
+            rrb.Vertical(scene, more, row_shares=[3, 2]),
             figure,
             column_shares=[2, 3],
         ),
