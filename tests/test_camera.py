@@ -336,3 +336,59 @@ def test_the_recording_holds_each_camera_and_what_it_saw(tmp_path: Path) -> None
         truth = cam.observe(pose[:3], quat_matrix(*pose[3:]))
         assert labels == ["c1", "c2", "c3", "c4"]
         np.testing.assert_allclose(np.array(xy), truth.pixels, rtol=0, atol=1e-3)  # stored as float32
+
+
+@pytest.mark.slow
+def test_images_are_drawn_off_the_loop_and_recorded(tmp_path: Path) -> None:
+    """Two cameras with images: every frame's JPEG in the .rrd, on the camera's entity; the markers are red dots
+    where the projection puts them and the platform is under the top camera's image centre of it."""
+    import subprocess
+
+    from rerun.chunk import RrdReader
+
+    from cdpr import recording
+    from cdpr.tools.report import read_recording, state_columns
+    from cdpr_sim.render import MARKER_COLOR, PLATFORM_COLOR
+    from conftest import CDPR, last_json_line
+
+    path = CAMERA_SCENARIO.with_name("caroca_15kg_camera_images.yaml")
+    rrd = tmp_path / "images.rrd"
+    run = subprocess.run([*CDPR, "run", str(path), "--duration", "0.3", "--quiet", "--rrd", str(rrd)],
+                         capture_output=True, text=True, timeout=300)
+    assert run.returncode == 0, run.stderr[-2000:]
+    summary = last_json_line(run.stdout)
+    assert summary["exit_ok"]
+    assert "camera_image_errors" not in str(summary["faults"])
+    cameras = {c.name: c for c in load_scenario(path).cameras}
+    images: dict[str, dict[int, bytes]] = {name: {} for name in cameras}
+    for chunk in RrdReader(str(rrd)).stream().to_chunks():
+        rb = chunk.to_record_batch()
+        for name, cam in cameras.items():
+            if chunk.entity_path == "/" + recording.camera_entity(cam) and "EncodedImage:blob" in rb.schema.names:
+                for step, blob in zip(rb.column("step").to_pylist(), rb.column("EncodedImage:blob").to_pylist(),
+                                      strict=True):
+                    images[name][step] = bytes(blob[0])
+    skipped = summary["faults"].get("sim", {}).get("camera_images_skipped", 0)
+    # every frame's image, or counted as skipped (the image thread still busy with the one before: a skip
+    # takes all the images due at that step)
+    assert set(images["top"]) <= set(range(0, 300, 20))
+    assert len(images["top"]) >= 15 - skipped
+    assert set(images["corner"]) <= set(range(0, 300, 33))
+    assert len(images["corner"]) >= 10 - skipped
+    data = read_recording(rrd)
+    k = data.get(recording.ACTUAL_POSITION).step
+    cols = state_columns(data, k, 8)
+    for name, shots in images.items():
+        cam = cameras[name]
+        step = min(shots)
+        img = cv2.imdecode(np.frombuffer(shots[step], np.uint8), cv2.IMREAD_COLOR)[:, :, ::-1]
+        assert img.shape == (480, 640, 3)
+        pose = cols["pose"][int(np.flatnonzero(k == step)[0])]
+        seen = cam.observe(pose[:3], quat_matrix(*pose[3:]))
+        for u, v in seen.pixels[seen.visible]:
+            assert np.abs(img[int(v), int(u)].astype(int) - MARKER_COLOR).max() < 60, (name, u, v)
+        top_face = np.add(pose[:3], (0.0, 0.0, 0.2))  # the middle of the platform's top face
+        centre = project(top_face, *cam.pose(pose[:3], quat_matrix(*pose[3:])), cam.intrinsics).pixels[0]
+        colour = img[int(centre[1]), int(centre[0])].astype(float)
+        assert colour[2] > colour[0] + 30  # blue: the platform (shaded PLATFORM_COLOR), not the background
+        assert np.abs(colour / np.linalg.norm(colour) - PLATFORM_COLOR / np.linalg.norm(PLATFORM_COLOR)).max() < 0.1

@@ -26,7 +26,7 @@ import rerun as rr
 from cdpr import recording
 from cdpr.config.scenario import Scenario
 from cdpr.errors import InputError
-from cdpr.protocol import CameraFrame, Keys, ProtocolError, Setpoints, Status, Telemetry
+from cdpr.protocol import CameraFrame, CameraImage, Keys, ProtocolError, Setpoints, Status, Telemetry
 from cdpr.protocol.session import session_info
 from cdpr.protocol.streams import STATE, STATE_COLUMNS
 from cdpr.runtime.options import RECORDER_OPTIONS, add_options
@@ -84,6 +84,8 @@ class RecorderNode(Node):
         self.cameras = {c.name: c for c in scenario.cameras}
         self.frames: dict[str, dict[int, CameraFrame]] = {name: {} for name in self.cameras}  # not sent yet, by step
         self.frames_sent: dict[str, int] = dict.fromkeys(self.cameras, -1)  # the last step sent, per camera
+        self.images: dict[str, dict[int, CameraImage]] = {name: {} for name in self.cameras}
+        self.images_sent: dict[str, int] = dict.fromkeys(self.cameras, -1)
         self.recording_id = recording.recording_id(keys.session)
         times = np.linspace(0.0, scenario.duration, PLANNED_PATH_POINTS)
         self.planned_path = [scenario.trajectory.sample(float(t)).position for t in times]
@@ -150,6 +152,13 @@ class RecorderNode(Node):
     def handle(self, event: Event) -> None:
         core = self.core
         try:
+            if event.topic == "camera_image":
+                image = CameraImage.decode(event.payload)
+                if image.camera not in self.cameras:
+                    raise ProtocolError(f"camera: {image.camera!r} is not a camera of this scenario")
+                if image.step > self.images_sent[image.camera]:
+                    self.images[image.camera].setdefault(image.step, image)
+                return
             if event.topic == "camera":
                 frame = CameraFrame.decode(event.payload)
                 if frame.camera not in self.cameras:
@@ -325,7 +334,8 @@ class RecorderNode(Node):
         self.send_frames()
 
     def send_frames(self) -> None:
-        """Each camera's frames received since the last batch, as labelled 2D points at their exposure step."""
+        """Each camera's frames (labelled 2D points) and images received since the last batch, at their exposure
+        step."""
         assert self.rec is not None
         for name, frames in self.frames.items():
             if not frames:
@@ -335,6 +345,14 @@ class RecorderNode(Node):
                                          [f.pixels for f in rows], [f.ids for f in rows])
             self.frames_sent[name] = rows[-1].step
             frames.clear()
+        for name, images in self.images.items():
+            if not images:
+                continue
+            shots = [images[k] for k in sorted(images)]
+            recording.send_camera_images(self.rec, self.cameras[name], [i.step for i in shots], [i.t for i in shots],
+                                         [i.data for i in shots])
+            self.images_sent[name] = shots[-1].step
+            images.clear()
 
     def close(self) -> None:
         if self.closed:

@@ -27,6 +27,7 @@ Two variations, both through :mod:`cdpr_sim.hold`:
 from __future__ import annotations
 
 import time
+from concurrent.futures import Future, ThreadPoolExecutor
 from typing import Any
 
 import numpy as np
@@ -34,13 +35,26 @@ import zenoh
 from msgspec.structs import replace
 
 from cdpr.config.scenario import Scenario
+from cdpr.mechanics.camera import Camera
 from cdpr.mechanics.rotation import quat_matrix
-from cdpr.protocol import TELEMETRY_EVERY, TELEMETRY_PERIOD, Command, Keys, Resume, Sensors, State, Telemetry, Tick
+from cdpr.protocol import (
+    TELEMETRY_EVERY,
+    TELEMETRY_PERIOD,
+    CameraImage,
+    Command,
+    Keys,
+    Resume,
+    Sensors,
+    State,
+    Telemetry,
+    Tick,
+)
 from cdpr.runtime.service import Node, sleep_precisely
 from cdpr.runtime.transport import Event, Inbox, log
 from cdpr_sim.cameras import CameraSuite
 from cdpr_sim.hold import Applied, CommandHold, LatencyModel, StaticPolicy
 from cdpr_sim.models import make_sim
+from cdpr_sim.render import Renderer, encode_jpeg
 from cdpr_sim.sensors import SensorConfig, SensorSuite
 
 
@@ -72,6 +86,11 @@ class SimNode(Node):
         seed = 0 if sensors is None else sensors.seed
         self.cameras = CameraSuite(scenario.cameras, seed) if scenario.cameras else None
         self._camera_pubs: dict[str, zenoh.Publisher] = {}
+        # images (cameras with image: true): drawn and encoded on a thread of their own, off the loop's path
+        self.renderers = {c.name: Renderer(c, scenario.robot) for c in scenario.cameras if c.image}
+        self._image_pubs: dict[str, zenoh.Publisher] = {}
+        self._images = ThreadPoolExecutor(1, thread_name_prefix="camera-images") if self.renderers else None
+        self._image_busy: Future[None] | None = None
         self._telemetry_pub: zenoh.Publisher | None = None
         self.flushed_at = time.monotonic()
         self.block_states: list[State] = []
@@ -103,7 +122,9 @@ class SimNode(Node):
         self._sensors_pub = self.publishers["sensors"]
         for cam in self.scenario.cameras:  # one key per camera: sim/camera/<name>
             self._camera_pubs[cam.name] = session.declare_publisher(self.keys.topic("camera", cam.name))
-        return list(self._camera_pubs.values())
+            if cam.image:
+                self._image_pubs[cam.name] = session.declare_publisher(self.keys.topic("camera_image", cam.name))
+        return [*self._camera_pubs.values(), *self._image_pubs.values()]
 
     def handle(self, event: Event) -> None:
         if event.topic == "tick":
@@ -143,8 +164,34 @@ class SimNode(Node):
                 self._sensors_pub.put(reading.encode())
         if self.cameras is not None:
             pose = msg.pose
-            for frame in self.cameras.step(self.step, msg.t, pose[:3], quat_matrix(*pose[3:])):
+            R = quat_matrix(*pose[3:])
+            for frame in self.cameras.step(self.step, msg.t, pose[:3], R):
                 self._camera_pubs[frame.camera].put(frame.encode())
+            due = [c for c in self.scenario.cameras if c.image and self.step % c.every == 0]
+            if due:
+                self.take_images(due, self.step, msg.t, np.array(pose[:3]), R)
+
+    def take_images(self, cameras: list[Camera], step: int, t: float, position: np.ndarray,
+                    rotation: np.ndarray) -> None:
+        """Draw and send these cameras' images of step ``step`` on the image thread. Never waits for it: while
+        the previous images are still being drawn, these are skipped (counted in ``camera_images_skipped``)."""
+        assert self._images is not None
+        if self._image_busy is not None and not self._image_busy.done():
+            self.count("camera_images_skipped")
+            return
+        self._image_busy = self._images.submit(self._draw_images, cameras, step, t, position, rotation)
+
+    def _draw_images(self, cameras: list[Camera], step: int, t: float, position: np.ndarray,
+                     rotation: np.ndarray) -> None:
+        for cam in cameras:
+            try:
+                data = encode_jpeg(self.renderers[cam.name].draw(position, rotation))
+            except Exception as exc:  # an image is never worth the session: counted, said once, skipped
+                self.count("camera_image_errors")
+                self.warn("camera_image", f"camera {cam.name}: no image of step {step}: {exc}")
+                continue
+            k = cam.intrinsics
+            self._image_pubs[cam.name].put(CameraImage(cam.name, step, t, k.width, k.height, "jpeg", data).encode())
 
     def flush(self) -> None:
         """Send the telemetry block (with the current state again if nothing is new: a heartbeat)."""
@@ -380,5 +427,7 @@ class SimNode(Node):
             self.flush()
 
     def close(self) -> None:
+        if self._images is not None:
+            self._images.shutdown(wait=True, cancel_futures=True)  # the last image out before the session closes
         log(self.name, f"stopped at step {self.step}/{self.total_steps}; clamped commands: {self.clamped}"
             + (f"; {self.counters}" if self.counters else ""))

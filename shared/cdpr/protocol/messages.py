@@ -863,6 +863,37 @@ class CameraFrame:
                    _vector(msg, "depth", len(ids)))
 
 
+@dataclass(frozen=True, slots=True)
+class CameraImage:
+    """``sim/camera/{camera}/image``: an image of a camera whose scenario entry says ``image: true``, taken with
+    the frame of the same ``step`` (docs/protocol.md): ``format`` ``jpeg``, ``data`` the encoded bytes."""
+
+    camera: str
+    step: int
+    t: float
+    width: int
+    height: int
+    format: str
+    data: bytes
+
+    def encode(self) -> bytes:
+        return pack({"camera": self.camera, "step": self.step, "t": self.t, "width": self.width,
+                     "height": self.height, "format": self.format, "data": self.data})
+
+    @classmethod
+    def decode(cls, payload: bytes) -> CameraImage:
+        msg = unpack(payload)
+        camera, fmt, data = _field(msg, "camera"), _field(msg, "format"), _field(msg, "data")
+        if not isinstance(camera, str) or not camera:
+            raise ProtocolError(f"camera: expected the camera's name, got {camera!r}")
+        if fmt != "jpeg":
+            raise ProtocolError(f"format: expected 'jpeg', got {fmt!r}")
+        if not isinstance(data, bytes) or not data:
+            raise ProtocolError("data: expected the encoded image's bytes")
+        return cls(camera, _int(msg, "step"), _float(msg, "t"), _int(msg, "width", 1), _int(msg, "height", 1), fmt,
+                   data)
+
+
 ClockState = Literal["waiting", "running", "paused", "finished", "aborted"]
 CLOCK_STATES: tuple[ClockState, ...] = get_args(ClockState)
 

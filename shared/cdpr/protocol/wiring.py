@@ -37,6 +37,7 @@ TOPICS: dict[str, Topic] = {
     "sensors": Topic("sim/sensors", "Sensors", "bad_sensors"),
     # one key per camera of the scenario (sim.cameras): the node declares them itself (cdpr_sim.node)
     "camera": Topic("sim/camera/{camera}", "CameraFrame", "bad_camera"),
+    "camera_image": Topic("sim/camera/{camera}/image", "CameraImage", "bad_camera_image"),
     "info": Topic("session/info", "SessionInfo", transport="queryable"),
     "resume": Topic("session/resume", "Resume", "bad_resume"),
     "stats": Topic("stats/{node}", "ServiceStats", "bad_stats"),
@@ -57,10 +58,10 @@ EVERY_NODE = NodeWiring(subscribes=("status",), publishes=("stats", "alive", "pi
 WIRING: dict[str, NodeWiring] = {
     "clock": NodeWiring(subscribes=("telemetry", "stats"), publishes=("tick", "status", "info", "resume")),
     "sim": NodeWiring(subscribes=("tick", "command", "resume"),
-                      publishes=("state", "telemetry", "sensors", "camera")),
+                      publishes=("state", "telemetry", "sensors", "camera", "camera_image")),
     "trajectory": NodeWiring(subscribes=("tick",), publishes=("setpoints",)),
     "controller": NodeWiring(subscribes=("state", "setpoints"), publishes=("command",)),
-    "recorder": NodeWiring(subscribes=("telemetry", "setpoints", "camera"), publishes=()),
+    "recorder": NodeWiring(subscribes=("telemetry", "setpoints", "camera", "camera_image"), publishes=()),
     # the session on ROS 2's wire (rmw_zenoh); "command" only while a ROS 2 controller is there (docs/ros2.md)
     "ros2": NodeWiring(subscribes=("tick", "state", "setpoints", "sensors"), publishes=("command",)),
 }

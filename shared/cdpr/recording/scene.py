@@ -281,6 +281,16 @@ def send_camera_frames(rec: Recording, camera: Camera, steps: ArrayLike, times: 
                      rr.Points2D.columns(positions=flat, labels=labels).partition(counts))
 
 
+def send_camera_images(rec: Recording, camera: Camera, steps: ArrayLike, times: ArrayLike,
+                       images: Sequence[bytes]) -> None:
+    """A camera's images (JPEG) at their steps, on the camera's entity: shown in its 2D view and in the
+    frustum of the 3D view."""
+    if not len(np.asarray(steps)):
+        return
+    rec.send_columns(camera_entity(camera), time_columns(steps, times),
+                     rr.EncodedImage.columns(blob=list(images), media_type=["image/jpeg"] * len(images)))
+
+
 def blueprint(tension_range: tuple[float, float] | None = None, cameras: Sequence[Camera] = ()) -> rrb.Blueprint:
     """The default layout: the 3D scene beside the paper's Fig. 2/3 four panels (desired position,
     actual position, position error, cable tensions), with more plots in tabs under the scene, and what

@@ -1,0 +1,130 @@
+"""Camera images: what a camera of the scenario sees, drawn with OpenCV (the painter's algorithm). No I/O.
+
+The scene is the frame's box (its edges), the cables (straight, platform end to frame anchor; drawn before the
+platform, which hides those behind it), the platform (its shape's faces, shaded by how squarely each faces the
+camera, farthest first) and the markers (a dot and the marker's id). Every point goes through the camera's own
+projection, lens distortion included (:func:`cdpr.mechanics.camera.project`); a line is drawn as short
+segments so that it bends as the lens bends it, and the part of a segment behind the camera is cut off.
+About 2.5 ms for 640 × 480 on one core here, 1.5 ms more to encode it as JPEG. Needs
+``opencv-python-headless`` (``pip install 'cdpr[camera]'``), imported when the first image is drawn."""
+
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
+from cdpr.mechanics.camera import Camera, project
+from cdpr.mechanics.robot import Robot
+from cdpr.mechanics.rotation import Array
+
+BACKGROUND = (205, 205, 200)  # RGB
+FRAME_COLOR = (90, 90, 90)
+CABLE_COLOR = (25, 25, 25)
+PLATFORM_COLOR = np.array([70, 130, 180], dtype=float)
+MARKER_COLOR = (220, 40, 40)
+NEAR = 0.05  # m: what is closer to the camera than this is not drawn
+SEGMENTS = 12  # pieces of each line (the lens bends lines)
+# the 6 faces of a box, as indices into its corners (x, y, z signs in binary: bit 0 → x)
+BOX_FACES = ((0, 1, 3, 2), (4, 5, 7, 6), (0, 1, 5, 4), (2, 3, 7, 6), (0, 2, 6, 4), (1, 3, 7, 5))
+
+
+def _cv2() -> Any:
+    try:
+        import cv2
+    except ImportError:
+        raise ImportError("camera images need OpenCV: pip install 'cdpr[camera]' (opencv-python-headless)") from None
+    return cv2
+
+
+def box_corners(half: ArrayLike) -> Array:
+    h = np.asarray(half, dtype=float)
+    return np.array([[(1 if i & 1 else -1) * h[0], (1 if i & 2 else -1) * h[1], (1 if i & 4 else -1) * h[2]]
+                     for i in range(8)])
+
+
+class Renderer:
+    """Draws ``camera``'s view of ``robot`` (static parts set up once)."""
+
+    def __init__(self, camera: Camera, robot: Robot) -> None:
+        self.camera, self.robot = camera, robot
+        lo, hi = robot.frame_min, robot.frame_max
+        corners = np.array([[hi[0] if i & 1 else lo[0], hi[1] if i & 2 else lo[1], hi[2] if i & 4 else lo[2]]
+                            for i in range(8)])
+        self.frame_edges = [(corners[a], corners[b]) for a in range(8) for b in range(a + 1, 8)
+                            if bin(a ^ b).count("1") == 1]
+        size = robot.shape.size
+        half = [s / 2.0 for s in size] if robot.shape.type == "box" else [size[0]] * 3
+        self.platform_corners = box_corners(half)
+        k = camera.intrinsics  # the image's corners, undistorted, and a margin: how far out lines are drawn
+        self.max_radius = 1.3 * float(np.hypot(max(k.cx, k.width - k.cx) / k.fx, max(k.cy, k.height - k.cy) / k.fy))
+
+    def _line(self, img: Any, a: Array, b: Array, cam_p: Array, cam_R: Array, color: tuple[int, int, int],
+              width: int) -> None:
+        cv2 = _cv2()
+        pts = a + np.linspace(0.0, 1.0, SEGMENTS + 1)[:, None] * (b - a)
+        depth = (pts - cam_p) @ cam_R[:, 2]
+        keep = depth > NEAR
+        if keep.sum() < 2:
+            return
+        pts = pts[keep]
+        local = (pts - cam_p) @ cam_R
+        # only where the lens model holds: a distortion polynomial folds back far outside the image
+        radius = np.hypot(local[:, 0], local[:, 1]) / local[:, 2]
+        pts = pts[radius <= self.max_radius]
+        if len(pts) < 2:
+            return
+        uv = project(pts, cam_p, cam_R, self.camera.intrinsics, near=NEAR).pixels
+        uv = uv[np.isfinite(uv).all(axis=1)]
+        if len(uv) >= 2:
+            cv2.polylines(img, [np.round(uv * 16).astype(np.int32)], False, color, width, cv2.LINE_AA, 4)
+
+    def draw(self, position: ArrayLike, rotation: ArrayLike) -> NDArray[np.uint8]:
+        """The image (height, width, 3), RGB, uint8, with the platform at ``position``/``rotation``."""
+        cv2 = _cv2()
+        cam, k = self.camera, self.camera.intrinsics
+        p, R = np.asarray(position, dtype=float), np.asarray(rotation, dtype=float)
+        cam_p, cam_R = cam.pose(p, R)
+        img = np.empty((k.height, k.width, 3), dtype=np.uint8)
+        img[:] = BACKGROUND
+        for a, b in self.frame_edges:
+            self._line(img, a, b, cam_p, cam_R, FRAME_COLOR, 1)
+        # the platform's faces, farthest first; each shaded by the cosine between its normal and the view
+        corners = p + self.platform_corners @ R.T
+        faces = []
+        for face in BOX_FACES:
+            quad = corners[list(face)]
+            centre = quad.mean(axis=0)
+            normal = np.cross(quad[1] - quad[0], quad[3] - quad[0])
+            normal /= np.linalg.norm(normal)
+            if np.dot(normal, centre - p) < 0:
+                normal = -normal  # outward
+            to_camera = cam_p - centre
+            distance = float(np.linalg.norm(to_camera))
+            if np.dot(normal, to_camera) <= 0 or ((quad - cam_p) @ cam_R[:, 2] <= NEAR).any():
+                continue  # facing away, or crossing the camera's near plane
+            faces.append((distance, quad, float(np.dot(normal, to_camera)) / distance))
+        anchors = p + self.robot.platform_points @ R.T
+        for a, b in zip(anchors, self.robot.frame_points, strict=True):  # under the platform: hidden behind it
+            self._line(img, a, b, cam_p, cam_R, CABLE_COLOR, 1)
+        for _, quad, light in sorted(faces, key=lambda f: -f[0]):
+            uv = project(quad, cam_p, cam_R, k, near=NEAR).pixels
+            color = tuple(int(c) for c in PLATFORM_COLOR * (0.45 + 0.55 * light))
+            cv2.fillConvexPoly(img, np.round(uv * 16).astype(np.int32), color, cv2.LINE_AA, 4)
+        seen = cam.observe(p, R)
+        for j in np.flatnonzero(seen.visible):
+            u, v = seen.pixels[j]
+            cv2.circle(img, (round(float(u) * 16), round(float(v) * 16)), 4 * 16, MARKER_COLOR, -1, cv2.LINE_AA, 4)
+            cv2.putText(img, cam.marker_ids[j], (int(u) + 6, int(v) - 6), cv2.FONT_HERSHEY_SIMPLEX, 0.4,
+                        MARKER_COLOR, 1, cv2.LINE_AA)
+        return img
+
+
+def encode_jpeg(image: NDArray[np.uint8], quality: int = 85) -> bytes:
+    """An RGB image as JPEG bytes."""
+    cv2 = _cv2()
+    ok, data = cv2.imencode(".jpg", np.ascontiguousarray(image[:, :, ::-1]), [cv2.IMWRITE_JPEG_QUALITY, quality])
+    if not ok:
+        raise RuntimeError("OpenCV could not encode the image as JPEG")
+    return bytes(data)
