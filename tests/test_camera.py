@@ -392,3 +392,41 @@ def test_images_are_drawn_off_the_loop_and_recorded(tmp_path: Path) -> None:
         colour = img[int(centre[1]), int(centre[0])].astype(float)
         assert colour[2] > colour[0] + 30  # blue: the platform (shaded PLATFORM_COLOR), not the background
         assert np.abs(colour / np.linalg.norm(colour) - PLATFORM_COLOR / np.linalg.norm(PLATFORM_COLOR)).max() < 0.1
+
+
+@pytest.mark.slow
+def test_the_mcap_file_holds_the_cameras(tmp_path: Path) -> None:
+    """--mcap: per camera, its images (foxglove.CompressedImage, JPEG), its calibration (foxglove.CameraCalibration)
+    and its markers (foxglove.ImageAnnotations) at every frame, and its optical frame."""
+    import subprocess
+
+    from mcap.reader import make_reader
+
+    from conftest import CDPR, last_json_line
+
+    path = CAMERA_SCENARIO.with_name("caroca_15kg_camera_images.yaml")
+    out = tmp_path / "cam.mcap"
+    run = subprocess.run([*CDPR, "run", str(path), "--duration", "0.3", "--quiet", "--in-process", "--mcap", str(out)],
+                         capture_output=True, text=True, timeout=300)
+    assert run.returncode == 0, run.stderr[-2000:]
+    summary = last_json_line(run.stdout)
+    skipped = summary["faults"].get("sim", {}).get("camera_images_skipped", 0)
+    counts: dict[str, int] = {}
+    schemas: dict[str, str] = {}
+    jpeg = 0
+    with out.open("rb") as f:
+        for schema, channel, message in make_reader(f).iter_messages():
+            counts[channel.topic] = counts.get(channel.topic, 0) + 1
+            schemas[channel.topic] = schema.name
+            if channel.topic.endswith("/image"):
+                jpeg += b"\xff\xd8\xff" in message.data
+    assert schemas["/camera/top/image"] == "foxglove.CompressedImage"
+    assert schemas["/camera/top/calibration"] == "foxglove.CameraCalibration"
+    assert schemas["/camera/top/markers"] == "foxglove.ImageAnnotations"
+    assert schemas["/camera/frames"] == "foxglove.FrameTransform"
+    assert counts["/camera/frames"] == 2  # each camera's mount, once
+    assert counts["/camera/top/markers"] == 15  # every frame: steps 0, 20, …, 280
+    assert counts["/camera/corner/markers"] == 10  # 0, 33, …, 297
+    assert counts["/camera/top/calibration"] == 15
+    assert counts["/camera/top/image"] >= 15 - skipped
+    assert jpeg == counts["/camera/top/image"] + counts["/camera/corner/image"]

@@ -236,7 +236,7 @@ def test_dockerfile_builds_one_image_per_role() -> None:
     assert not [ln for ln in every if ln.startswith("VOLUME")]  # no anonymous volume per container
     # Each role's virtualenv holds its install extras, listed by requirements.py from pyproject.toml.
     lists = " ".join(stages["requirements"])
-    for extras, role in (("stack", "stack"), ("sim", "sim"), ("record plots", "recorder")):
+    for extras, role in (("stack", "stack"), ("sim camera", "sim"), ("record plots", "recorder")):
         assert f"pyproject.toml {extras} >/build/{role}.txt" in lists
         assert f"COPY --from=requirements /build/{role}.txt /build/" in stages[f"deps-{role}"]
         assert any(f"pip install -r /build/{role}.txt" in ln for ln in stages[f"deps-{role}"])
@@ -274,11 +274,11 @@ def test_requirements_of_each_role() -> None:
         sys.path.pop(0)
     pyproject = str(ROOT / "pyproject.toml")
     names = {role: {re.split(r"[<>=!~\[ ;]", r, maxsplit=1)[0] for r in requirements(pyproject, extras)}
-             for role, extras in (("stack", ["stack"]), ("sim", ["sim"]), ("recorder", ["record", "plots"]))}
+             for role, extras in (("stack", ["stack"]), ("sim", ["sim", "camera"]), ("recorder", ["record", "plots"]))}
     base = {"eclipse-zenoh", "msgpack", "msgspec", "numpy", "scipy", "qpsolvers", "osqp", "pyyaml", "pydantic", "click",
             "setproctitle"}
     assert names["stack"] == base
-    assert names["sim"] == base | {"dartpy"}
+    assert names["sim"] == base | {"dartpy", "opencv-python-headless"}  # camera images (docs/cameras.md)
     assert base | {"rerun-sdk", "matplotlib"} <= names["recorder"]
     assert "dartpy" not in names["recorder"]
     with pytest.raises(SystemExit, match="no extra 'nope'"):

@@ -201,7 +201,7 @@ def test_one_image_per_role(images: dict[str, int]) -> None:
              "'viewer': v is not None and (pathlib.Path(v.origin).parent / 'rerun').exists(), "
              "'pip': u.find_spec('pip') is not None}))")
     modules = ["cdpr_clock", "cdpr_trajectory", "cdpr_controller", "cdpr_sim", "cdpr_recorder", "dartpy", "rerun",
-               "matplotlib"]
+               "matplotlib", "cv2"]
     facts = {}
     for tag in IMAGES:
         proc = _run(["docker", "run", "--rm", "--entrypoint", "python", tag, "-c", probe, *modules], timeout=120)
@@ -215,7 +215,7 @@ def test_one_image_per_role(images: dict[str, int]) -> None:
     has = {tag: {m for m, ok in f["modules"].items() if ok} for tag, f in facts.items()}
     every = {"cdpr_clock", "cdpr_trajectory", "cdpr_controller", "cdpr_sim", "cdpr_recorder"}  # the cdpr wheel
     assert has["cdpr:stack"] == every  # the light image: no physics, no Rerun, no plots
-    assert has["cdpr:sim"] == every | {"dartpy"}
+    assert has["cdpr:sim"] == every | {"dartpy", "cv2"}  # OpenCV: camera images (docs/cameras.md)
     assert has["cdpr:recorder"] == every | {"rerun", "matplotlib"}
     assert facts["cdpr:recorder"]["viewer"] is False  # 280 MB that no service runs
     # dartpy loads (its libGL.so.1 and libX11.so.6 are there), and each image's entrypoint answers.

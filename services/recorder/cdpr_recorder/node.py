@@ -107,7 +107,7 @@ class RecorderNode(Node):
                     self.live = LiveServer(foxglove, foxglove_host, name=f"cdpr {scenario.name} ({keys.session})")
                     log(self.name, f"Foxglove WebSocket server at {self.live.url}")
                 self.fox = FoxgloveSink(self.robot, self.session_description(), mcap=mcap, live=self.live,
-                                        planned_path=self.planned_path)
+                                        planned_path=self.planned_path, cameras=scenario.cameras)
         except BaseException:
             self._close_sinks()
             raise
@@ -222,6 +222,7 @@ class RecorderNode(Node):
             self.send(batch)
         if self.fox is not None:
             self.send_foxglove(batch)
+        self.send_frames()
         self.last_flush = time.monotonic()
 
     def send_foxglove(self, b: Batch) -> None:
@@ -331,26 +332,31 @@ class RecorderNode(Node):
             recording.send_scalars(rec, recording.SENSOR_ACCEL, r.step, r.t, r.accel)
             recording.send_scalars(rec, recording.SENSOR_GYRO, r.step, r.t, r.gyro)
         recording.send_path(rec, b.path.step, b.path.t, b.path.points)
-        self.send_frames()
 
     def send_frames(self) -> None:
         """Each camera's frames (labelled 2D points) and images received since the last batch, at their exposure
-        step."""
-        assert self.rec is not None
+        step, to every sink."""
         for name, frames in self.frames.items():
             if not frames:
                 continue
             rows = [frames[k] for k in sorted(frames)]
-            recording.send_camera_frames(self.rec, self.cameras[name], [f.step for f in rows], [f.t for f in rows],
-                                         [f.pixels for f in rows], [f.ids for f in rows])
+            steps, times = [f.step for f in rows], [f.t for f in rows]
+            if self.rec is not None:
+                recording.send_camera_frames(self.rec, self.cameras[name], steps, times, [f.pixels for f in rows],
+                                             [f.ids for f in rows])
+            if self.fox is not None:
+                self.fox.camera_frames(name, times, [f.pixels for f in rows])
             self.frames_sent[name] = rows[-1].step
             frames.clear()
         for name, images in self.images.items():
             if not images:
                 continue
             shots = [images[k] for k in sorted(images)]
-            recording.send_camera_images(self.rec, self.cameras[name], [i.step for i in shots], [i.t for i in shots],
-                                         [i.data for i in shots])
+            steps, times = [i.step for i in shots], [i.t for i in shots]
+            if self.rec is not None:
+                recording.send_camera_images(self.rec, self.cameras[name], steps, times, [i.data for i in shots])
+            if self.fox is not None:
+                self.fox.camera_images(name, times, [i.data for i in shots])
             self.images_sent[name] = shots[-1].step
             images.clear()
 

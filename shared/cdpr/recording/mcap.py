@@ -34,7 +34,9 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from cdpr.errors import InputError
+from cdpr.mechanics.camera import Camera
 from cdpr.mechanics.robot import Robot
+from cdpr.mechanics.rotation import matrix_to_quat
 from cdpr.protocol.streams import (
     COMMAND_TIMING,
     LENGTHS,
@@ -69,7 +71,12 @@ ERROR = "/error"  # JSON every step with a state and a setpoint: position and or
 COMMAND = "/command"  # JSON every command: commanded values, feasibility, TDA status, solve time, loop lag
 SENSORS = "/sensors"  # JSON every reading (scenarios with sensors): encoders, load cells, IMU
 CLOCK = "/clock/status"  # JSON about once a second: the clock's state and stats
+# Cameras (scenario sim.cameras), per camera NAME: /camera/NAME/image (foxglove.CompressedImage, JPEG, with
+# image: true), /camera/NAME/calibration (foxglove.CameraCalibration, with each frame),
+# /camera/NAME/markers (foxglove.ImageAnnotations: the markers seen, every frame); the camera's frame
+# camera_NAME is a static transform from world (frame-mounted) or platform (platform-mounted)
 
+CAMERA_FRAMES = "/camera/frames"  # foxglove.FrameTransform, once at t = 0: each camera's optical frame
 WORLD_FRAME, PLATFORM_FRAME, DESIRED_FRAME = "world", "platform", "desired"
 BACKLOG = 1 << 15  # messages buffered per live client (a fast-mode batch is ~1 500 messages)
 
@@ -284,6 +291,7 @@ class FoxgloveSink:
         planned_path: ArrayLike | None = None,
         protocol_version: int | None = None,
         compression: str = "zstd",
+        cameras: Sequence[Camera] = (),
     ) -> None:
         import foxglove
         from foxglove import messages as fm
@@ -310,6 +318,13 @@ class FoxgloveSink:
             schemas[topic] = ("protobuf", fm.FrameTransform.get_schema())
         for topic in (SCENE_STATIC, SCENE_CABLES, SCENE_PATH):
             schemas[topic] = ("protobuf", fm.SceneUpdate.get_schema())
+        self.cameras = {c.name: c for c in cameras}
+        for name in self.cameras:
+            schemas[f"/camera/{name}/image"] = ("protobuf", fm.CompressedImage.get_schema())
+            schemas[f"/camera/{name}/calibration"] = ("protobuf", fm.CameraCalibration.get_schema())
+            schemas[f"/camera/{name}/markers"] = ("protobuf", fm.ImageAnnotations.get_schema())
+        if self.cameras:
+            schemas[CAMERA_FRAMES] = ("protobuf", fm.FrameTransform.get_schema())
         self.outputs: list[_Output] = []
         self.writer: Any = None
         if self.mcap_path is not None:
@@ -372,7 +387,15 @@ class FoxgloveSink:
                 type=fm.LinePrimitiveLineType.LineStrip, thickness=0.012, color=_color(255, 165, 0, 160),
                 points=[_point(p) for p in pts])]))
         scene = fm.SceneUpdate(entities=entities).encode()
-        return [(SESSION, session), (SCENE_STATIC, scene)]
+        mounts = []
+        for cam in self.cameras.values():  # each camera's optical frame, fixed to the frame or the platform
+            x, y, z, w = matrix_to_quat(cam.mount_rotation).tolist()
+            px, py, pz = cam.mount_position.tolist()
+            mounts.append((CAMERA_FRAMES, fm.FrameTransform(
+                timestamp=_stamp(0), parent_frame_id=PLATFORM_FRAME if cam.on_platform else WORLD_FRAME,
+                child_frame_id=f"camera_{cam.name}", translation=fm.Vector3(x=px, y=py, z=pz),
+                rotation=fm.Quaternion(x=x, y=y, z=z, w=w)).encode()))
+        return [(SESSION, session), (SCENE_STATIC, scene), *mounts]
 
     def _shape(self, color: Any) -> dict[str, Any]:
         fm, shape = self._fm, self.robot.shape
@@ -527,6 +550,33 @@ class FoxgloveSink:
         if self.writer is not None:
             self.writer.close()
             self.writer = None
+
+    def camera_frames(self, name: str, t: Sequence[float], pixels: Sequence[Sequence[float]]) -> None:
+        """A camera's frames: the markers it saw (pixels, flat u, v) as image annotations, with its calibration."""
+        fm = self._fm
+        ns = nanoseconds(t).tolist()
+        self._emit(f"/camera/{name}/markers", t, lambda: [fm.ImageAnnotations(points=[fm.PointsAnnotation(
+            timestamp=_stamp(n), type=fm.PointsAnnotationType.Points, thickness=8.0,
+            outline_color=_color(220, 40, 40, 255),
+            points=[fm.Point2(x=u, y=v) for u, v in zip(px[0::2], px[1::2], strict=True)])]).encode()
+            for n, px in zip(ns, pixels, strict=True)])
+        self._emit(f"/camera/{name}/calibration", t, lambda: [self._calibration(name, n) for n in ns])
+
+    def camera_images(self, name: str, t: Sequence[float], images: Sequence[bytes]) -> None:
+        """A camera's images (JPEG); its calibration goes with each frame (:meth:`camera_frames`)."""
+        fm = self._fm
+        ns = nanoseconds(t).tolist()
+        self._emit(f"/camera/{name}/image", t, lambda: [fm.CompressedImage(
+            timestamp=_stamp(n), frame_id=f"camera_{name}", data=data, format="jpeg").encode()
+            for n, data in zip(ns, images, strict=True)])
+
+    def _calibration(self, name: str, ns: int) -> bytes:
+        fm, k = self._fm, self.cameras[name].intrinsics
+        K = k.matrix.ravel().tolist()
+        return fm.CameraCalibration(
+            timestamp=_stamp(ns), frame_id=f"camera_{name}", width=k.width, height=k.height,
+            distortion_model="plumb_bob", D=list(k.distortion), K=K, R=[1.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 1.0],
+            P=[K[0], K[1], K[2], 0.0, K[3], K[4], K[5], 0.0, K[6], K[7], K[8], 0.0]).encode()
 
     # -- 3D messages ------------------------------------------------------------------------------
     def _transforms(self, child: str, t: NDArray[np.float64], poses: NDArray[np.float64]) -> list[bytes]:
