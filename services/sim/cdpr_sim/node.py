@@ -147,6 +147,8 @@ class SimNode(Node):
         if again and self._state_msg is not None and self._state_msg.step == self.step:
             msg = self._state_msg
         else:
+            if self.step >= self.total_steps:
+                self.images_out()
             msg = self.sim.message(self.clamped)
             if (applied := self.applied) is not None and (applied.age or applied.watchdog):
                 msg = replace(msg, command_age=applied.age, watchdog=int(applied.watchdog))
@@ -173,13 +175,22 @@ class SimNode(Node):
 
     def take_images(self, cameras: list[Camera], step: int, t: float, position: np.ndarray,
                     rotation: np.ndarray) -> None:
-        """Draw and send these cameras' images of step ``step`` on the image thread. Never waits for it: while
-        the previous images are still being drawn, these are skipped (counted in ``camera_images_skipped``)."""
+        """Draw and send these cameras' images of step ``step`` on the image thread, while the loop goes on.
+        Realtime, the loop never waits for it: while the previous images are still being drawn, these are
+        skipped (counted in ``camera_images_skipped``). Fast mode has no deadline: every image is drawn, the
+        loop waiting for the previous ones (if not done yet) before it hands these over."""
         assert self._images is not None
         if self._image_busy is not None and not self._image_busy.done():
-            self.count("camera_images_skipped")
-            return
+            if self.paced:
+                self.count("camera_images_skipped")
+                return
+            self._image_busy.result()
         self._image_busy = self._images.submit(self._draw_images, cameras, step, t, position, rotation)
+
+    def images_out(self) -> None:
+        """Fast mode: the images in hand are out before the session's last state (and so before its end)."""
+        if self._image_busy is not None and not self.paced:
+            self._image_busy.result()
 
     def _draw_images(self, cameras: list[Camera], step: int, t: float, position: np.ndarray,
                      rotation: np.ndarray) -> None:
