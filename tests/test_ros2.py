@@ -555,7 +555,9 @@ def test_free_running_unstamped_commands_apply_as_they_arrive(ros2_session: Sess
     assert s["watchdog_steps"] == 0  # a command every step or so: the watchdog never acts
     assert s["command_age_p50"] <= 2  # the newest state's answer, acting at once
     assert s["rms_position_error"] < 1e-3, s
-    assert "ros2" not in s["faults"], s["faults"]
+    # nothing bad; at most the answer to a state the clock asked for again, before the session ran free
+    # (a second answer to the same state: no state awaits it)
+    assert "bad_ros2_commands" not in s["faults"].get("ros2", {}), s["faults"]
 
 
 @pytest.mark.slow
