@@ -56,6 +56,10 @@ class CameraSuite:
         self.seed = seed
         self.pending: deque[tuple[int, CameraFrame]] = deque()  # (step it goes out at, frame)
 
+    def due(self, step: int) -> bool:
+        """Whether anything happens at ``step``: a frame exposed, or one whose latency has run out."""
+        return any(step % cam.every == 0 for cam in self.cameras) or any(d <= step for d, _ in self.pending)
+
     def step(self, step: int, t: float, position: ArrayLike, rotation: ArrayLike) -> list[CameraFrame]:
         """The frames exposed at ``step`` are taken; those whose latency has run out by ``step`` come back."""
         for i, cam in enumerate(self.cameras):

@@ -54,7 +54,7 @@ from cdpr.runtime.transport import Event, Inbox, log
 from cdpr_sim.cameras import CameraSuite
 from cdpr_sim.hold import Applied, CommandHold, LatencyModel, StaticPolicy
 from cdpr_sim.models import make_sim
-from cdpr_sim.render import Renderer, encode_jpeg
+from cdpr_sim.render import RenderProcess
 from cdpr_sim.sensors import SensorConfig, SensorSuite
 
 
@@ -86,11 +86,13 @@ class SimNode(Node):
         seed = 0 if sensors is None else sensors.seed
         self.cameras = CameraSuite(scenario.cameras, seed) if scenario.cameras else None
         self._camera_pubs: dict[str, zenoh.Publisher] = {}
-        # images (cameras with image: true): drawn and encoded on a thread of their own, off the loop's path
-        self.renderers = {c.name: Renderer(c, scenario.robot) for c in scenario.cameras if c.image}
+        # images (cameras with image: true): drawn and encoded in a process of their own, handed over by a thread
+        drawn = tuple(c for c in scenario.cameras if c.image)
+        self.renderer = RenderProcess(drawn, scenario.robot) if drawn else None
         self._image_pubs: dict[str, zenoh.Publisher] = {}
-        self._images = ThreadPoolExecutor(1, thread_name_prefix="camera-images") if self.renderers else None
+        self._images = ThreadPoolExecutor(1, thread_name_prefix="camera-images") if drawn else None
         self._image_busy: Future[None] | None = None
+        self._images_in_background = False
         self._telemetry_pub: zenoh.Publisher | None = None
         self.flushed_at = time.monotonic()
         self.block_states: list[State] = []
@@ -164,7 +166,7 @@ class SimNode(Node):
             self.block_sensors.append(reading)
             if self._sensors_pub is not None:  # for an estimator or a monitor (Zenoh drops it if nobody listens)
                 self._sensors_pub.put(reading.encode())
-        if self.cameras is not None:
+        if self.cameras is not None and self.cameras.due(self.step):
             pose = msg.pose
             R = quat_matrix(*pose[3:])
             for frame in self.cameras.step(self.step, msg.t, pose[:3], R):
@@ -194,9 +196,13 @@ class SimNode(Node):
 
     def _draw_images(self, cameras: list[Camera], step: int, t: float, position: np.ndarray,
                      rotation: np.ndarray) -> None:
+        assert self.renderer is not None
+        if self.paced and not self._images_in_background:
+            self._images_in_background = True
+            self.renderer.background()  # realtime: the loop's deadlines before the images
         for cam in cameras:
             try:
-                data = encode_jpeg(self.renderers[cam.name].draw(position, rotation))
+                data = self.renderer.image(cam.name, position, rotation)
             except Exception as exc:  # an image is never worth the session: counted, said once, skipped
                 self.count("camera_image_errors")
                 self.warn("camera_image", f"camera {cam.name}: no image of step {step}: {exc}")
@@ -440,5 +446,7 @@ class SimNode(Node):
     def close(self) -> None:
         if self._images is not None:
             self._images.shutdown(wait=True, cancel_futures=True)  # the last image out before the session closes
+        if self.renderer is not None:
+            self.renderer.close()
         log(self.name, f"stopped at step {self.step}/{self.total_steps}; clamped commands: {self.clamped}"
             + (f"; {self.counters}" if self.counters else ""))
