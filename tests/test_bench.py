@@ -39,11 +39,12 @@ def bench(tmp_path_factory: pytest.TempPathFactory) -> tuple[dict, str]:
 
 def test_top_level_and_machine(bench: tuple[dict, str]) -> None:
     r, _ = bench
-    assert r["version"] == 7
+    assert r["version"] == 8
     assert r["quick"] is True
     assert r["scenario"] == "caroca_15kg"
     for key in ("plan", "machine", "started", "elapsed_s", "monolithic", "distributed", "loops", "deliveries",
-                "startup", "zenoh_rtt", "realtime", "realtime_2khz", "tda", "scaling", "mujoco", "ros2", "targets"):
+                "startup", "zenoh_rtt", "realtime", "realtime_2khz", "tda", "scaling", "mujoco", "ros2", "cameras",
+                "targets"):
         assert key in r, key
     m = r["machine"]
     assert isinstance(m["nproc"], int)
@@ -51,7 +52,7 @@ def test_top_level_and_machine(bench: tuple[dict, str]) -> None:
     assert isinstance(m["cpu_model"], str)
     assert len(m["loadavg"]) == 3
     assert len(m["loadavg_end"]) == 3
-    parts = ["loops", "startup", "zenoh_rtt", "realtime", "tda", "scaling", "mujoco", "ros2"]
+    parts = ["loops", "startup", "zenoh_rtt", "realtime", "tda", "scaling", "mujoco", "ros2", "cameras"]
     assert list(m["loadavg_by_part"]) == parts
     assert all(isinstance(x, float) and x >= 0 for x in m["loadavg_by_part"].values())
     assert _positive(r["elapsed_s"])
@@ -303,3 +304,18 @@ def test_the_ros2_controller_in_the_bench(bench: tuple[dict, str]) -> None:
     assert ros["ros2"]["ros2_side_cpu_us_per_step"] == pytest.approx(by["ros2"] + by["ros2_controller"])
     assert "8 a ROS 2 controller" in text
     assert "ros2_controller/cdpr_controller>=0.5" in r["targets"]
+
+
+def test_what_cameras_cost_in_the_bench(bench: tuple[dict, str]) -> None:
+    r, text = bench
+    cams = r["cameras"]
+    assert cams["available"] is True
+    for name in ("none", "features_60hz", "images_30hz"):
+        assert _positive(cams["steps_per_s"][name])
+        assert len(cams["runs_steps_per_s"][name]) == QUICK.camera_repeats
+    assert cams["features_60hz_cost"] == pytest.approx(1 - cams["steps_per_s"]["features_60hz"]
+                                                       / cams["steps_per_s"]["none"])
+    for name in ("none", "images_30hz"):
+        assert 0.0 <= cams["realtime"][name]["on_time_fraction"] <= 1.0
+    assert "9 cameras" in text
+    assert "camera_images_30hz_cost<=0.25" in r["targets"]

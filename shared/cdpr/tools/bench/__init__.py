@@ -142,6 +142,10 @@ def targets(result: dict[str, Any]) -> dict[str, dict[str, Any]]:
         out["monolithic/mujoco_peer>=1.0"] = target(x := mj["monolithic_to_peer"], x >= 1.0)
     if (ros := result.get("ros2", {})).get("available"):
         out["ros2_controller/cdpr_controller>=0.5"] = target(x := ros["ratio"], x >= 0.5)
+    if (cams := result.get("cameras", {})).get("available"):  # #26
+        out["camera_features_60hz_cost<=0.05"] = target(x := cams["features_60hz_cost"], x <= 0.05)
+        out["camera_images_30hz_cost<=0.25"] = target(x := cams["images_30hz_cost"], x <= 0.25)
+        out["camera_images_realtime_drop_points<=0.2"] = target(x := cams["realtime_on_time_drop_points"], x <= 0.2)
     return out
 
 
@@ -163,7 +167,7 @@ def run_bench(plan: BenchPlan, scenario: str = "caroca_15kg", out: Path | None =
 
     def part(name: str, message: str) -> None:
         load[name] = os.getloadavg()[0]
-        log(f"{len(load)}/8 {message}")
+        log(f"{len(load)}/9 {message}")
 
     part("loops", f"distributed loop: multi-process, recording (.rrd; .rrd and .mcap), in-process (x "
                   f"{plan.loop_repeats}), each after the monolithic loop ({plan.mono_steps} steps)")
@@ -203,6 +207,11 @@ def run_bench(plan: BenchPlan, scenario: str = "caroca_15kg", out: Path | None =
     from cdpr.tools.bench.ros2 import bench_ros2
 
     result["ros2"] = bench_ros2(scenario, plan.ros2_duration, plan.ros2_repeats)
+    part("cameras", f"cameras: none, features at 60 Hz, images at 30 Hz ({plan.camera_duration:g} s fast, x "
+                    f"{plan.camera_repeats}; {plan.camera_realtime_duration:g} s realtime)")
+    from cdpr.tools.bench.cameras import bench_cameras
+
+    result["cameras"] = bench_cameras(plan.camera_duration, plan.camera_repeats, plan.camera_realtime_duration)
     result["machine"]["loadavg_end"] = list(os.getloadavg())
     result["elapsed_s"] = time.monotonic() - started
     result["targets"] = targets(result)
@@ -346,6 +355,23 @@ def table(r: dict[str, Any]) -> str:
         )]
     else:
         lines.append(f"    {ros['reason']}")
+    lines += ["", "9 cameras (one looking down at four markers): what they cost the loop"]
+    cams = r.get("cameras") or {"available": False, "reason": "not run"}
+    if cams["available"]:
+        rates, rt = cams["steps_per_s"], cams["realtime"]
+        lines += [f"    {name:48s} {value:>22s}" for name, value in (
+            ("fast mode, no camera, steps/s", _fmt(rates["none"])),
+            ("  a 60 Hz camera, features only, steps/s", _fmt(rates["features_60hz"])),
+            ("    throughput lost", f"{100 * cams['features_60hz_cost']:.1f} %"),
+            ("  a 30 Hz camera drawing 640 x 480 images, steps/s", _fmt(rates["images_30hz"])),
+            ("    throughput lost", f"{100 * cams['images_30hz_cost']:.1f} %"),
+            (f"realtime 1 kHz, {cams['realtime_duration_s']:g} s: on time without / with images",
+             f"{100 * rt['none']['on_time_fraction']:.2f} / {100 * rt['images_30hz']['on_time_fraction']:.2f} %"),
+            ("    a sleeping probe beside each", f"{100 * rt['none']['probe_on_time_fraction']:.2f} / "
+                                                f"{100 * rt['images_30hz']['probe_on_time_fraction']:.2f} %"),
+        )]
+    else:
+        lines.append(f"    {cams['reason']}")
     lines += ["", "targets"]
     lines += [target_line(name, t) for name, t in r["targets"].items()]
     return "\n".join(lines)

@@ -5,13 +5,13 @@ from __future__ import annotations
 import sys
 from dataclasses import dataclass
 
-BENCH_VERSION = 7  # 2: loop variants (recording, in-process), deliveries, start-up; 3: the recorder writing
+BENCH_VERSION = 8  # 2: loop variants (recording, in-process), deliveries, start-up; 3: the recorder writing
 # an .rrd and an .mcap (loops.multi_process_recording_both, loops.recording_both_cost, its target); 4: the
 # monolithic loop measured before each run of a variant (M A M B M C M D), no longer first and apart; 5: the
 # MuJoCo peer (mujoco: its loop beside the monolithic one, the engines' agreement; its target); 6: realtime paced by
 # the sim (lateness: each step's start after its deadline), 2 kHz (realtime_2khz), --cpu-latency runs, the
 # monolithic loop messaging as protocol 2 does (windows, blocks); 7: a ROS 2 controller's session beside the cdpr
-# controller's (ros2)
+# controller's (ros2); 8: what cameras cost (cameras)
 
 
 @dataclass(frozen=True)
@@ -34,6 +34,9 @@ class BenchPlan:
     startup_repeats: int = 3  # 50-step sessions timed as whole commands, per mode
     ros2_duration: float = 11.0  # sim seconds of each ROS 2- and cdpr-controlled session (ros2 part)
     ros2_repeats: int = 3  # runs of each, alternating
+    camera_duration: float = 6.0  # sim seconds of each fast-mode session of the cameras part
+    camera_repeats: int = 3  # rounds of (no camera, features, images)
+    camera_realtime_duration: float = 30.0  # sim seconds of each realtime session of the cameras part
 
 
 FULL = BenchPlan(
@@ -45,7 +48,7 @@ QUICK = BenchPlan(
     mono_steps=2000, mono_repeats=1, loop_duration=4.0, loop_repeats=1, rtt_count=2000,
     realtime_duration=3.0, realtime_2khz_duration=3.0, tda_sizes=(4, 8, 16), tda_calls=400,
     session_counts=(1, 2, 4), session_duration=3.0, cable_counts=(4, 16), cable_duration=3.0,
-    ros2_duration=4.0, ros2_repeats=1,
+    ros2_duration=4.0, ros2_repeats=1, camera_duration=3.0, camera_repeats=1, camera_realtime_duration=3.0,
 )
 
 
