@@ -401,20 +401,25 @@ def test_the_mcap_file_holds_the_cameras(tmp_path: Path) -> None:
     from conftest import CDPR, last_json_line
 
     path = CAMERA_SCENARIO.with_name("caroca_15kg_camera_images.yaml")
-    out = tmp_path / "cam.mcap"
-    run = subprocess.run([*CDPR, "run", str(path), "--duration", "0.3", "--quiet", "--in-process", "--mcap", str(out)],
-                         capture_output=True, text=True, timeout=300)
+    out, rrd = tmp_path / "cam.mcap", tmp_path / "cam.rrd"
+    run = subprocess.run([*CDPR, "run", str(path), "--duration", "0.3", "--quiet", "--in-process", "--mcap", str(out),
+                          "--rrd", str(rrd)], capture_output=True, text=True, timeout=300)
     assert run.returncode == 0, run.stderr[-2000:]
     assert last_json_line(run.stdout)["exit_ok"]
-    counts: dict[str, int] = {}
-    schemas: dict[str, str] = {}
-    jpeg = 0
-    with out.open("rb") as f:
-        for schema, channel, message in make_reader(f).iter_messages():
-            counts[channel.topic] = counts.get(channel.topic, 0) + 1
-            schemas[channel.topic] = schema.name
-            if channel.topic.endswith("/image"):
-                jpeg += b"\xff\xd8\xff" in message.data
+
+    def read(mcap: Path) -> tuple[dict[str, int], dict[str, str], int]:
+        counts: dict[str, int] = {}
+        schemas: dict[str, str] = {}
+        jpeg = 0
+        with mcap.open("rb") as f:
+            for schema, channel, message in make_reader(f).iter_messages():
+                counts[channel.topic] = counts.get(channel.topic, 0) + 1
+                schemas[channel.topic] = schema.name
+                if channel.topic.endswith("/image"):
+                    jpeg += b"\xff\xd8\xff" in message.data
+        return counts, schemas, jpeg
+
+    counts, schemas, jpeg = read(out)
     assert schemas["/camera/top/image"] == "foxglove.CompressedImage"
     assert schemas["/camera/top/calibration"] == "foxglove.CameraCalibration"
     assert schemas["/camera/top/markers"] == "foxglove.ImageAnnotations"
@@ -426,3 +431,11 @@ def test_the_mcap_file_holds_the_cameras(tmp_path: Path) -> None:
     assert counts["/camera/top/image"] == 15  # fast mode: every image
     assert counts["/camera/corner/image"] == 10
     assert jpeg == 25
+    # cdpr convert --to mcap of the .rrd: the same camera channels, as many messages
+    conv = subprocess.run([*CDPR, "convert", str(rrd), "--to", "mcap", "-o", str(tmp_path / "converted.mcap")],
+                          capture_output=True, text=True, timeout=300)
+    assert conv.returncode == 0, conv.stderr[-2000:]
+    converted, converted_schemas, converted_jpeg = read(tmp_path / "converted.mcap")
+    for topic in (t for t in counts if t.startswith("/camera/")):
+        assert (converted[topic], converted_schemas[topic]) == (counts[topic], schemas[topic]), topic
+    assert converted_jpeg == 25

@@ -151,11 +151,12 @@ class Processes:
         self.logs: dict[str, Path] = {}
         self._files: list[IO[bytes]] = []
 
-    def start(self, name: str, argv: Sequence[str], cwd: Path, log: Path) -> subprocess.Popen[bytes]:
+    def start(self, name: str, argv: Sequence[str], cwd: Path, log: Path,
+              env: Mapping[str, str] | None = None) -> subprocess.Popen[bytes]:
         f = log.open("wb")
         self._files.append(f)
         self.logs[name] = log
-        p = subprocess.Popen(list(argv), cwd=cwd, stdout=f, stderr=subprocess.STDOUT)
+        p = subprocess.Popen(list(argv), cwd=cwd, stdout=f, stderr=subprocess.STDOUT, env=env)
         self.procs[name] = p
         return p
 

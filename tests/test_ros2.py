@@ -317,14 +317,8 @@ class Session:
             s.payload.to_bytes())))
 
     def controller(self, name: str, *args: str) -> subprocess.Popen[bytes]:
-        log = self.tmp / f"{name}.log"
-        f = log.open("wb")
-        self.procs._files.append(f)
-        self.procs.logs[name] = log
-        p = subprocess.Popen([sys.executable, str(CONTROLLER), "--router-port", str(self.port), *args], cwd=self.tmp,
-                             stdout=f, stderr=subprocess.STDOUT, env=self.env)
-        self.procs.procs[name] = p
-        return p
+        return self.procs.start(name, [sys.executable, str(CONTROLLER), "--router-port", str(self.port), *args],
+                                self.tmp, self.tmp / f"{name}.log", env=self.env)
 
     def _check_controllers(self) -> None:
         for name, p in self.procs.procs.items():
@@ -576,10 +570,8 @@ def test_the_compose_ros2_profile_runs_a_session_with_a_ros2_controller(sdk_env:
         for name in names:
             c = containers[name]
             procs.start(name, c.argv, c.cwd, c.log)
-        procs.procs["controller"] = subprocess.Popen(
-            [sys.executable, str(CONTROLLER), "--router-port", str(port)], cwd=tmp_path, env=sdk_env,
-            stdout=(tmp_path / "controller.log").open("wb"), stderr=subprocess.STDOUT)
-        procs.logs["controller"] = tmp_path / "controller.log"
+        procs.start("controller", [sys.executable, str(CONTROLLER), "--router-port", str(port)], tmp_path,
+                    tmp_path / "controller.log", env=sdk_env)
         codes = procs.wait(SESSION_SERVICES, timeout=180)
         assert codes == dict.fromkeys(SESSION_SERVICES, 0), procs.report()
         assert procs.wait(["ros2"], timeout=WAIT) == {"ros2": 0}, procs.report()

@@ -51,6 +51,10 @@ class _Extras:
     clock: dict[str, list[tuple[int, int, float]]] = field(default_factory=lambda: defaultdict(list))  # (step, ns, v)
     frame_box: tuple[np.ndarray, np.ndarray] | None = None
     planned_path: np.ndarray | None = None
+    # per camera entity (world/cameras/NAME, world/platform/cameras/NAME): its frames' (step, ns, pixels) and
+    # its images' (step, ns, JPEG)
+    camera_points: dict[str, list[tuple[int, int, list[float]]]] = field(default_factory=lambda: defaultdict(list))
+    camera_images: dict[str, list[tuple[int, int, bytes]]] = field(default_factory=lambda: defaultdict(list))
 
 
 def _read_extras(path: Path, text_entities: tuple[str, ...], clock_prefix: str) -> _Extras:
@@ -77,6 +81,16 @@ def _read_extras(path: Path, text_entities: tuple[str, ...], clock_prefix: str) 
         steps = batch.column(recording.STEP).to_numpy().tolist()
         ns = (batch.column(recording.SIM_TIME).cast(pa.int64()).to_numpy().tolist() if recording.SIM_TIME in names
               else [0] * len(steps))
+        if entity.startswith((recording.CAMERAS + "/", recording.PLATFORM_CAMERAS + "/")):
+            if entity.endswith("/" + recording.CAMERA_MARKERS) and "Points2D:positions" in names:
+                camera = entity.rsplit("/", 2)[1]
+                for k, t, xy in zip(steps, ns, batch.column("Points2D:positions").to_pylist(), strict=True):
+                    out.camera_points[camera].append((k, t, [c for p in xy or () for c in p]))
+            elif "EncodedImage:blob" in names:
+                camera = entity.rsplit("/", 1)[1]
+                for k, t, blob in zip(steps, ns, batch.column("EncodedImage:blob").to_pylist(), strict=True):
+                    out.camera_images[camera].append((k, t, bytes(blob[0])))
+            continue
         if entity in text_entities and "TextLog:text" in names:
             for k, t, texts in zip(steps, ns, batch.column("TextLog:text").to_pylist(), strict=True):
                 out.texts[entity] += [(k, t, s) for s in texts or ()]
@@ -144,7 +158,10 @@ def rrd_to_mcap(rrd: str | Path, out: str | Path) -> dict[str, Any]:
     extras = _read_extras(src, (recording.COMMAND_STATUS, recording.CLOCK_STATE), recording.CLOCK + "/")
     if extras.frame_box is not None:
         robot = robot.replace(frame_min=extras.frame_box[0], frame_max=extras.frame_box[1])
-    sink = FoxgloveSink(robot, session, mcap=dst, planned_path=extras.planned_path)
+    from cdpr.config.camera import CameraSpec
+
+    cameras = tuple(CameraSpec.model_validate(c).build(dt) for c in info.get("sim", {}).get("cameras", []))
+    sink = FoxgloveSink(robot, session, mcap=dst, planned_path=extras.planned_path, cameras=cameras)
     try:
         counts = _feed(sink, data, extras, dt, m, scene_every, path_every)
     finally:
@@ -218,6 +235,13 @@ def _feed(
 
     statuses = _status_rows(extras, recording.CLOCK_STATE)
     sink.statuses(statuses)
+
+    for name, rows in sorted(extras.camera_points.items()):
+        rows.sort()
+        sink.camera_frames(name, [t * 1e-9 for _, t, _ in rows], [px for _, _, px in rows])
+    for name, shots in sorted(extras.camera_images.items()):
+        shots.sort(key=lambda r: r[0])
+        sink.camera_images(name, [t * 1e-9 for _, t, _ in shots], [data for _, _, data in shots])
 
     on_path = (k % path_every == 0) | (k == final)
     points = pose[on_path, :3]
