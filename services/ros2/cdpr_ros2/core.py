@@ -22,7 +22,7 @@ from cdpr.mechanics.kinematics import cable_length_rates, inverse_kinematics
 from cdpr.mechanics.outputs import CommandKind
 from cdpr.mechanics.robot import Robot
 from cdpr.mechanics.rotation import quat_to_matrix
-from cdpr.protocol import Command, Sensors, Setpoint, State
+from cdpr.protocol import PROTOCOL_VERSION, Command, Sensors, Setpoint, State
 from cdpr.protocol.session import session_info
 from cdpr.ros2 import messages as ros
 from cdpr.ros2.cdr import CdrError, finite, stamp
@@ -57,7 +57,7 @@ class Bridge:
         self.output = output  # "tensions" or "lengths": what a command carries
         self.names = cable_names(self.m)
         self._order = {name: i for i, name in enumerate(self.names)}
-        self.info = {"v": 2, **info}
+        self.info = {"v": PROTOCOL_VERSION, **info}
         self.free = False
         self.newest: State | None = None  # the last state published with its setpoint
         self.pending: OrderedDict[tuple[int, int], State] = OrderedDict()  # published, not answered: by stamp

@@ -32,10 +32,6 @@ def stamp(t: float) -> tuple[int, int]:
     return int(sec), int(nanosec)
 
 
-def stamp_seconds(sec: int, nanosec: int) -> float:
-    return sec + nanosec * 1e-9
-
-
 class Writer:
     """A payload built field by field (``bytes(writer)`` or :meth:`payload`: the whole of it)."""
 
