@@ -439,3 +439,98 @@ def test_the_mcap_file_holds_the_cameras(tmp_path: Path) -> None:
     for topic in (t for t in counts if t.startswith("/camera/")):
         assert (converted[topic], converted_schemas[topic]) == (counts[topic], schemas[topic]), topic
     assert converted_jpeg == 25
+
+
+# --------------------------------------------------------------------------------------------------
+# Image-based visual servoing through the loop (controller.law: ibvs)
+
+
+def _final_image_error(rrd: Path) -> tuple[int, float]:
+    """The last recorded frame's step and its RMS pixel distance to the desired image (the markers at B)."""
+    from rerun.chunk import RrdReader
+
+    sc = load_scenario("caroca_15kg_ibvs")
+    (cam,) = sc.cameras
+    goal = sc.trajectory.sample(sc.trajectory.duration)
+    desired = cam.observe(goal.position, goal.rotation).pixels
+    frames: dict[int, list] = {}
+    for chunk in RrdReader(str(rrd)).stream().to_chunks():
+        if chunk.entity_path == "/world/cameras/top/markers":
+            rb = chunk.to_record_batch()
+            frames.update(zip(rb.column("step").to_pylist(), rb.column("Points2D:positions").to_pylist(),
+                              strict=True))
+    last = max(frames)
+    error = np.array(frames[last]) - desired
+    return last, float(np.sqrt(np.mean(np.sum(error * error, axis=1))))
+
+
+@pytest.mark.slow
+def test_ibvs_brings_the_platform_to_the_desired_image(tmp_path: Path) -> None:
+    """caroca_15kg_ibvs, multi-process and in-process: the same states (digest), the markers' image at B to
+    within 1 px at the end (read back from the recording: what the camera saw), tensions within the limits."""
+    import subprocess
+
+    from conftest import CDPR, last_json_line
+
+    summaries = {}
+    for mode in ("multi_process", "in_process"):
+        rrd = tmp_path / f"{mode}.rrd"
+        run = subprocess.run([*CDPR, "run", "caroca_15kg_ibvs", "--quiet", "--rrd", str(rrd),
+                              *(["--in-process"] if mode == "in_process" else [])],
+                             capture_output=True, text=True, timeout=600)
+        assert run.returncode == 0, run.stderr[-3000:]
+        summaries[mode] = last_json_line(run.stdout)
+        last, error = _final_image_error(rrd)
+        assert last == 11980
+        assert error <= 1.0, error  # ~0.03 px: the law's exponential after the speed limit
+        assert "IBVS: the last frame (step 11980)" in run.stderr
+    a, b = summaries["multi_process"], summaries["in_process"]
+    assert a["state_digest"] == b["state_digest"]
+    assert a["exit_ok"]
+    assert not a["faults"], a["faults"]
+    robot = load_scenario("caroca_15kg_ibvs").robot
+    assert robot.tmin <= a["tension_min"] <= a["tension_max"] <= robot.tmax
+    assert a["clamped_commands"] == 0
+    assert a["final_position_error"] < 1e-3  # at B (the quintic's end), though it never followed the quintic
+
+
+@pytest.mark.slow
+def test_ibvs_with_pixel_noise(tmp_path: Path) -> None:
+    """σ = 0.5 px on every coordinate: the last frame within 3 px of the desired image."""
+    import subprocess
+
+    from conftest import CDPR
+
+    spec = yaml.safe_load((SCENARIOS / "caroca_15kg_ibvs.yaml").read_text(encoding="utf-8"))
+    spec["sim"]["cameras"][0]["pixel_sigma"] = 0.5
+    path = tmp_path / "noisy.yaml"
+    path.write_text(yaml.safe_dump(spec, sort_keys=False), encoding="utf-8")
+    rrd = tmp_path / "noisy.rrd"
+    run = subprocess.run([*CDPR, "run", str(path), "--quiet", "--in-process", "--rrd", str(rrd)],
+                         capture_output=True, text=True, timeout=600)
+    assert run.returncode == 0, run.stderr[-3000:]
+    _, error = _final_image_error(rrd)
+    assert error <= 3.0, error
+
+
+@pytest.mark.parametrize(("controller", "camera", "message"), [
+    ({"law": "ibvs"}, None, "law ibvs needs its section"),
+    ({"law": "ibvs", "ibvs": {"camera": "side"}}, None, "no camera 'side' in sim.cameras (there: top)"),
+    ({"ibvs": {"camera": "top"}}, None, "used by law ibvs only"),
+    ({"law": "ibvs", "ibvs": {"camera": "top"}}, {"body": "platform"}, "must be on the frame looking at markers"),
+    ({"law": "ibvs", "ibvs": {"camera": "top"}, "variant": "3dof"}, None, "variant 6dof, output tensions"),
+])
+def test_bad_ibvs_configurations_say_what_is_wrong(tmp_path: Path, controller: dict, camera: dict | None,
+                                                   message: str) -> None:
+    spec = yaml.safe_load((SCENARIOS / "caroca_15kg_ibvs.yaml").read_text(encoding="utf-8"))
+    spec["controller"] = {"tda": {"method": "qp"}, **controller}
+    if camera is not None:
+        spec["sim"]["cameras"][0]["mount"].update(camera)
+        spec["sim"]["cameras"][0]["mount"]["position"] = [0.0, 0.0, -0.3]
+        spec["sim"]["cameras"][0]["markers"] = {"frame": "world", "points": [[0.9, 0.9, 0.0], [0.5, 0.9, 0.0],
+                                                                             [0.9, 0.5, 0.0]]}
+    path = tmp_path / "bad.yaml"
+    path.write_text(yaml.safe_dump(spec, sort_keys=False), encoding="utf-8")
+    with pytest.raises(InputError, match="controller") as err:
+        load_scenario(path)
+    assert message in str(err.value)

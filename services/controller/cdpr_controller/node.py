@@ -10,15 +10,18 @@ from __future__ import annotations
 import time
 from typing import Any
 
+import numpy as np
 import zenoh
 
 from cdpr.config.scenario import Scenario
 from cdpr.mechanics.rotation import matrix_to_quat
+from cdpr.mechanics.tda import TdaResult
 from cdpr.protocol import Command, Keys, Setpoint, State
 from cdpr.protocol.pairing import Pairing
 from cdpr.runtime.service import Node, pair
 from cdpr.runtime.transport import Event, Inbox, log
 from cdpr_controller.core import ControllerCore
+from cdpr_controller.ibvs import frame_needed, ibvs_from_scenario
 
 
 class ControllerNode(Node):
@@ -32,6 +35,10 @@ class ControllerNode(Node):
 
     def __init__(self, scenario: Scenario, keys: Keys) -> None:
         super().__init__(keys)
+        # image-based visual servoing (controller.law: ibvs): the camera's frames instead of the state's pose
+        self.ibvs = ibvs_from_scenario(scenario) if scenario.spec.controller.law == "ibvs" else None
+        self.waiting: State | None = None  # IBVS: a state whose frame has not come yet
+        self.total_steps = scenario.total_steps
         self.core = self.make_core(scenario)
         # held at the start pose, at rest: about what step 0 brings
         pose = (*scenario.initial_position.tolist(), *matrix_to_quat(scenario.initial_rotation).tolist())
@@ -51,13 +58,43 @@ class ControllerNode(Node):
         return []
 
     def handle(self, event: Event) -> None:
-        if (due := pair(self, self.pairing, event, self.m)) is not None:
+        if self.ibvs is not None:
+            self.handle_ibvs(event)
+        elif (due := pair(self, self.pairing, event, self.m)) is not None:
             self.answer(*due)
+
+    def handle_ibvs(self, event: Event) -> None:
+        """IBVS: state k is answered once the newest frame out by step k is in (whatever the order the frames and
+        the states arrive in: the answers are the same in every run); the setpoints are not used."""
+        assert self.ibvs is not None
+        if event.topic == "camera":
+            frame = self.decode(event)
+            if frame is None or frame.camera != self.ibvs.camera.name:
+                return
+            self.ibvs.on_frame(frame)
+        elif event.topic == "state":
+            if (state := self.decode(event, self.m)) is not None:
+                self.waiting = state
+        else:
+            return
+        state = self.waiting
+        if state is None or state.step >= self.total_steps:
+            return  # (the session's last state awaits no command)
+        needed = frame_needed(self.ibvs.camera, state.step)
+        if needed is not None and self.ibvs.frame_step < needed:
+            return  # its frame is on its way
+        self.waiting = None
+        start = time.perf_counter()
+        result = self.ibvs.step(state.step)
+        self.send(state, result, None, time.perf_counter() - start)
 
     def answer(self, state: State, setpoint: Setpoint) -> None:
         start = time.perf_counter()
         result, lengths = self.core.command(state, setpoint)
-        solve_time = time.perf_counter() - start
+        self.send(state, result, lengths, time.perf_counter() - start)
+
+    def send(self, state: State, result: TdaResult, lengths: np.ndarray | None, solve_time: float) -> None:
+        """Command k: the tensions (or lengths) of ``result``, said and counted when infeasible."""
         if not result.feasible:
             self.infeasible += 1
             self.count("infeasible_distributions")
@@ -74,4 +111,7 @@ class ControllerNode(Node):
         self.pairing.done(state.step)
 
     def close(self) -> None:
-        log(self.name, f"answered up to step {self.pairing.answered}; infeasible distributions: {self.infeasible}")
+        servo = "" if self.ibvs is None else (f"; IBVS: the last frame (step {self.ibvs.frame_step}) "
+                                              f"{self.ibvs.feature_error:.3f} px RMS from the desired image")
+        log(self.name, f"answered up to step {self.pairing.answered}; infeasible distributions: {self.infeasible}"
+            + servo)

@@ -61,7 +61,29 @@ class TdaSpec(Strict):
 Gain = FiniteFloat | list[FiniteFloat]
 
 
+class GoalSpec(Strict):
+    position: list[FiniteFloat] = Field(min_length=3, max_length=3)
+    rpy: list[FiniteFloat] = Field(default_factory=lambda: [0.0, 0.0, 0.0], min_length=3, max_length=3)
+
+
+class IbvsSpec(Strict):
+    """Image-based visual servoing (cdpr_controller.ibvs): a camera of sim.cameras and the image to reach."""
+
+    camera: str = Field(description="the camera (on the frame, looking at markers on the platform)")
+    gain: PositiveFloat = Field(1.0, description="λ, 1/s: the feature error decays as exp(−λ t)")
+    kv: PositiveFloat = Field(10.0, description="1/s: the gain of the loop that servoes the platform's twist")
+    max_speed: PositiveFloat = Field(0.5, description="m/s: the IBVS twist's linear part at most (far from the goal "
+                                     "the law alone would ask for metres per second)")
+    max_rate: PositiveFloat = Field(0.5, description="rad/s: its angular part at most")
+    goal: GoalSpec | None = Field(None, description="the pose whose image is the target (default: the "
+                                  "trajectory's last pose)")
+
+
 class ControllerSpec(Strict):
+    law: Literal["feedback_linearisation", "ibvs"] = Field(
+        "feedback_linearisation", description="feedback_linearisation (eq. 6–7, the setpoints) or ibvs (image-based "
+        "visual servoing: a camera's features only)")
+    ibvs: IbvsSpec | None = None
     variant: Literal["6dof", "3dof"] = "6dof"
     kp: Gain = 1500.0
     kd: Gain = 1500.0
@@ -280,6 +302,27 @@ class ScenarioSpec(Strict):
                              f"(winch-driven cables), not {self.sim.cable_model}")
         for camera in self.sim.cameras:
             check_rate(camera, self.dt)
+        ctrl = self.controller
+        if ctrl.law == "ibvs":
+            if ctrl.ibvs is None:
+                raise ValueError("controller.ibvs: law ibvs needs its section (camera, gain, kv)")
+            cams = {c.name: c for c in self.sim.cameras}
+            cam = cams.get(ctrl.ibvs.camera)
+            if cam is None:
+                raise ValueError(f"controller.ibvs.camera: no camera {ctrl.ibvs.camera!r} in sim.cameras "
+                                 f"(there: {', '.join(cams) or 'none'})")
+            if cam.mount.body != "frame" or cam.markers.frame != "platform":
+                raise ValueError(f"controller.ibvs.camera: {cam.name} must be on the frame looking at markers on the "
+                                 "platform (eye-to-hand)")
+            if len(cam.markers.points) < 3:
+                raise ValueError(f"controller.ibvs.camera: {cam.name} has {len(cam.markers.points)} marker(s); the "
+                                 "platform's pose needs 3 or more")
+            if ctrl.variant != "6dof" or ctrl.output != "tensions":
+                raise ValueError("controller.law: ibvs commands tensions for all 6 degrees of freedom (variant 6dof, "
+                                 "output tensions)")
+        elif ctrl.ibvs is not None:
+            raise ValueError("controller.ibvs: used by law ibvs only (this controller's law is "
+                             "feedback_linearisation)")
         latency, watchdog = self.sim.command_latency, self.sim.watchdog
         if latency is not None:
             most = latency.steps + latency.jitter

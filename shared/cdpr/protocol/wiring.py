@@ -60,7 +60,8 @@ WIRING: dict[str, NodeWiring] = {
     "sim": NodeWiring(subscribes=("tick", "command", "resume"),
                       publishes=("state", "telemetry", "sensors", "camera", "camera_image")),
     "trajectory": NodeWiring(subscribes=("tick",), publishes=("setpoints",)),
-    "controller": NodeWiring(subscribes=("state", "setpoints"), publishes=("command",)),
+    # camera: the frames of an image-based visual servo (controller.law: ibvs)
+    "controller": NodeWiring(subscribes=("state", "setpoints", "camera"), publishes=("command",)),
     "recorder": NodeWiring(subscribes=("telemetry", "setpoints", "camera", "camera_image"), publishes=()),
     # the session on ROS 2's wire (rmw_zenoh); "command" only while a ROS 2 controller is there (docs/ros2.md)
     "ros2": NodeWiring(subscribes=("tick", "state", "setpoints", "sensors"), publishes=("command",)),

@@ -154,6 +154,8 @@ def pair(node: Node, pairing: Pairing, event: Event, m: int | None) -> tuple[Sta
     if event.topic == "state":
         state = node.decode(event, m)
         return None if state is None else pairing.on_state(state)
+    if event.topic != "setpoints":
+        return None  # (a camera's frames: an image-based servo's, cdpr_controller.ibvs)
     block = node.decode(event)
     return None if block is None else pairing.on_setpoints(block)
 
