@@ -534,3 +534,38 @@ def test_bad_ibvs_configurations_say_what_is_wrong(tmp_path: Path, controller: d
     with pytest.raises(InputError, match="controller") as err:
         load_scenario(path)
     assert message in str(err.value)
+
+
+@pytest.mark.slow
+def test_a_missing_frame_never_stalls_an_ibvs_session(session_id: str, tmp_path: Path) -> None:
+    """A controller that expects frames the sim does not take (50 Hz against the sim's 25 Hz): when the clock
+    asks for a state again (a stall of --resend-after), the controller answers with the frames it has, says so
+    and counts it; the session finishes."""
+    import subprocess
+
+    from conftest import CDPR, free_port, last_json_line
+
+    spec = yaml.safe_load((SCENARIOS / "caroca_15kg_ibvs.yaml").read_text(encoding="utf-8"))
+    spec["sim"]["cameras"][0]["rate"] = 25.0
+    plant = tmp_path / "plant.yaml"
+    plant.write_text(yaml.safe_dump(spec, sort_keys=False), encoding="utf-8")
+    endpoint = f"tcp/127.0.0.1:{free_port()}"
+    up = subprocess.Popen([*CDPR, "up", str(plant), "--session", session_id, "--without", "controller",
+                           "--listen", endpoint, "--duration", "0.1", "--quiet"],
+                          stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    try:
+        ctl = subprocess.run([*CDPR, "controller", "caroca_15kg_ibvs", "--session", session_id, "--duration", "0.1",
+                              "--zenoh-mode", "client", "--connect", endpoint],
+                             capture_output=True, text=True, timeout=120)
+        out, err = up.communicate(timeout=120)
+    finally:
+        if up.poll() is None:
+            up.kill()
+    assert ctl.returncode == 0, ctl.stderr[-2000:]
+    summary = last_json_line(out)
+    assert summary["exit_ok"], err[-2000:]
+    assert summary["steps"] == 100
+    # expected at 22 (frame 20) and 62 (frame 60), which the 25 Hz sim never takes; 42 and 82 have theirs (40, 80)
+    # (more only if the machine itself stalls a second while a frame is on its way)
+    assert summary["faults"]["controller"]["camera_frames_missing"] >= 2
+    assert "the frame it needs has not come; answered without it" in ctl.stderr

@@ -38,6 +38,7 @@ class ControllerNode(Node):
         # image-based visual servoing (controller.law: ibvs): the camera's frames instead of the state's pose
         self.ibvs = ibvs_from_scenario(scenario) if scenario.spec.controller.law == "ibvs" else None
         self.waiting: State | None = None  # IBVS: a state whose frame has not come yet
+        self.frames_given_up = -1  # IBVS: the exposure of the last frame given up for lost
         self.total_steps = scenario.total_steps
         self.core = self.make_core(scenario)
         # held at the start pose, at rest: about what step 0 brings
@@ -73,16 +74,31 @@ class ControllerNode(Node):
                 return
             self.ibvs.on_frame(frame)
         elif event.topic == "state":
-            if (state := self.decode(event, self.m)) is not None:
-                self.waiting = state
+            if (state := self.decode(event, self.m)) is None:
+                return
+            # the clock asking for a state again (a stall) while its frame is still missing: a frame is lost, or
+            # this controller expects frames the sim does not take (another rate): answer with the frames in
+            # hand rather than stall the session
+            lost = self.waiting is not None and state.step == self.waiting.step
+            self.waiting = state
+            if lost and state.step < self.total_steps:
+                self.count("camera_frames_missing")
+                self.warn("frames", f"step {state.step}: the frame it needs has not come; answered without it")
+                self.frames_given_up = frame_needed(self.ibvs.camera, state.step) or 0  # not waited for again
+                self.answer_ibvs(state)
+                return
         else:
             return
         state = self.waiting
         if state is None or state.step >= self.total_steps:
             return  # (the session's last state awaits no command)
         needed = frame_needed(self.ibvs.camera, state.step)
-        if needed is not None and self.ibvs.frame_step < needed:
+        if needed is not None and self.ibvs.frame_step < needed and needed > self.frames_given_up:
             return  # its frame is on its way
+        self.answer_ibvs(state)
+
+    def answer_ibvs(self, state: State) -> None:
+        assert self.ibvs is not None
         self.waiting = None
         start = time.perf_counter()
         result = self.ibvs.step(state.step)
