@@ -391,9 +391,11 @@ def test_a_ros2_controller_runs_caroca_15kg_to_the_end(ros2_session: Session, un
     assert s["exit_ok"], s
     assert s["steps"] == s["total_steps"] == 11000
     assert s["rms_position_error"] <= 1e-3  # the bar; it is ~3e-5 m (feedback linearisation, exact model)
-    # nothing dropped: at most the repeated answer to a state the clock asked for again (stale_commands)
-    assert set(s["faults"]) <= {"sim"}, s["faults"]
+    # nothing bad: at most a second answer to a state the clock asked for again (its handshake repeat): the sim
+    # counts it stale, or, when the ros2 node has already passed the first on, the node finds no state awaiting it
+    assert set(s["faults"]) <= {"sim", "ros2"}, s["faults"]
     assert set(s["faults"].get("sim", {})) <= {"stale_commands"}, s["faults"]
+    assert set(s["faults"].get("ros2", {})) <= {"unmatched_ros2_commands"}, s["faults"]
     ctl.send_signal(signal.SIGTERM)
     assert ctl.wait(timeout=WAIT) == 0, ros2_session.procs.log("controller")[-2000:]
     answered = re.search(r"controller: answered (\d+) steps", ros2_session.procs.log("controller"))
