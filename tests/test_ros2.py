@@ -526,7 +526,11 @@ def test_the_graph_the_wait_the_pause_and_bad_commands(ros2_session: Session) ->
     assert s["exit_ok"], s
     assert s["steps"] == 3000
     assert s["rms_position_error"] <= 1e-3
-    assert s["faults"].get("ros2") == {"bad_ros2_commands": 3, "unmatched_ros2_commands": 1}, s["faults"]
+    ros2 = s["faults"].get("ros2", {})
+    assert ros2.get("bad_ros2_commands") == 3, s["faults"]  # 9 values, NaN, not CDR
+    # the unknown stamp (and a second answer to a state asked for again, if the clock repeated one)
+    assert ros2.get("unmatched_ros2_commands", 0) >= 1, s["faults"]
+    assert set(ros2) <= {"bad_ros2_commands", "unmatched_ros2_commands"}, s["faults"]
     log = ros2_session.stderr.read_text()
     assert "[ros2] dropped a bad /cdpr/tension_commands message: Float64MultiArray.data: 9 values, expected 8" in log
     assert "[ros2] the ROS 2 controller left: the session waits for it" in log
