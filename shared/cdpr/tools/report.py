@@ -20,6 +20,7 @@ from numpy.typing import NDArray
 
 from cdpr import recording
 from cdpr.errors import InputError
+from cdpr.mechanics.robot import Robot
 from cdpr.protocol import Command, Setpoint, State
 from cdpr.protocol.streams import COMMAND_AGE, STATE_COLUMNS, WATCHDOG
 from cdpr.tools.metrics import RunMetrics
@@ -127,6 +128,20 @@ def read_recording(path: str | Path) -> RecordingData:
         raise InputError(f"{p}: not a cdpr recording (no /{recording.SESSION} description)")
     series = {name: _series(v) for name, v in parts.items()}
     return RecordingData(str(p), recordings[0].recording_id, session, series, blueprints)
+
+
+def session_of(data: RecordingData, what: str) -> tuple[dict[str, Any], Robot, float, int]:
+    """What a converted file needs of a recording's session description: the session/info map, the robot,
+    dt and the number of cables; InputError naming the recording (``what``: the format being written)."""
+    from cdpr.protocol import ProtocolError
+    from cdpr.protocol.session import robot_from_summary
+
+    session = data.session
+    try:
+        info = session["info"]
+        return info, robot_from_summary(info["robot"]), float(session["dt"]), int(session["cables"])
+    except (KeyError, TypeError, ValueError, AttributeError, ProtocolError) as exc:
+        raise InputError(f"{data.path}: the session description lacks what {what} needs ({exc})") from None
 
 
 def state_columns(data: RecordingData, steps: NDArray[np.int64], m: int) -> dict[str, NDArray[Any]]:

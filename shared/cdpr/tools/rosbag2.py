@@ -30,8 +30,7 @@ def rrd_to_rosbag2(rrd: str | Path, out: str | Path, namespace: str = "/cdpr") -
     from cdpr import recording
     from cdpr.mechanics.kinematics import cable_length_rates, inverse_kinematics
     from cdpr.mechanics.rotation import quat_to_matrix
-    from cdpr.protocol import PROTOCOL_VERSION, ProtocolError
-    from cdpr.protocol.session import robot_from_summary
+    from cdpr.protocol import PROTOCOL_VERSION
     from cdpr.ros2 import messages as ros
     from cdpr.ros2.cdr import stamp
     from cdpr.ros2.graph import qualify
@@ -43,7 +42,7 @@ def rrd_to_rosbag2(rrd: str | Path, out: str | Path, namespace: str = "/cdpr") -
         setpoint_messages,
         state_messages,
     )
-    from cdpr.tools.report import read_recording, state_columns
+    from cdpr.tools.report import read_recording, session_of, state_columns
 
     src, dst = Path(rrd), Path(out)
     if dst.exists():
@@ -52,13 +51,8 @@ def rrd_to_rosbag2(rrd: str | Path, out: str | Path, namespace: str = "/cdpr") -
         shutil.rmtree(dst)  # a bag written before: replaced, as a converted .mcap is
     data = read_recording(src)
     session = data.session
-    try:
-        info = session["info"]
-        robot = robot_from_summary(info["robot"])
-        dt, m = float(session["dt"]), int(session["cables"])
-        output = info.get("controller", {}).get("output", "tensions")
-    except (KeyError, TypeError, ValueError, AttributeError, ProtocolError) as exc:
-        raise InputError(f"{src}: the session description lacks what a bag needs ({exc})") from None
+    info, robot, dt, m = session_of(data, "a bag")
+    output = info.get("controller", {}).get("output", "tensions")
     names = cable_names(m)
     get = data.get
     k = get(recording.ACTUAL_POSITION).step

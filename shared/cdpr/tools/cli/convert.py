@@ -138,22 +138,18 @@ def _status_rows(extras: _Extras, state_entity: str) -> list[_StatusRow]:
 def rrd_to_mcap(rrd: str | Path, out: str | Path) -> dict[str, Any]:
     """Write the cdpr recording ``rrd`` as the MCAP file ``out``; what was written, as a JSON-ready map."""
     from cdpr import recording
-    from cdpr.protocol import ProtocolError
-    from cdpr.protocol.session import robot_from_summary
     from cdpr.recording.mcap import FoxgloveSink
-    from cdpr.tools.report import read_recording
+    from cdpr.tools.report import read_recording, session_of
 
     src, dst = Path(rrd), Path(out)
     if dst.resolve() == src.resolve():
         raise InputError(f"-o: {dst} is the input file")
     data = read_recording(src)
     session = data.session
+    info, robot, dt, m = session_of(data, "MCAP")
     try:
-        info = session["info"]
-        robot = robot_from_summary(info["robot"])
-        dt, m = float(session["dt"]), int(session["cables"])
         scene_every, path_every = int(session.get("scene_every", 10)), int(session.get("path_every", 50))
-    except (KeyError, TypeError, ValueError, ProtocolError) as exc:
+    except (TypeError, ValueError) as exc:
         raise InputError(f"{src}: the session description lacks what MCAP needs ({exc})") from None
     extras = _read_extras(src, (recording.COMMAND_STATUS, recording.CLOCK_STATE), recording.CLOCK + "/")
     if extras.frame_box is not None:
