@@ -213,6 +213,8 @@ def test_each_service_publishes_its_own_keys_only(secure_router: SecureRouter) -
     assert _delivered(secure_router, "sim", keys.tick, "clock") == []
     assert _delivered(secure_router, "observer", keys.stats("sim"), "sim") == []
     assert len(_delivered(secure_router, "sim", keys.stats("sim"), "sim")) == 5
+    assert len(_delivered(secure_router, "controller", keys.end, "controller")) == 5  # a learning env's early end
+    assert _delivered(secure_router, "observer", keys.end, "controller") == []
 
 
 def test_liveliness_tokens_cannot_be_impersonated(secure_router: SecureRouter) -> None:

@@ -62,7 +62,8 @@ def test_every_registered_node_is_wired_as_the_table_says() -> None:
 
 
 def test_a_node_off_the_table_is_refused() -> None:
-    with pytest.raises(ValueError, match=r"publishes \['command', 'state'\], the wiring table lists \['command'\]"):
+    with pytest.raises(ValueError,
+                       match=r"publishes \['command', 'state'\], the wiring table lists \['command', 'end'\]"):
         wiring.check_node("controller", ("state", "setpoints", "camera"), ("command", "state"))
     with pytest.raises(ValueError, match="subscribes"):
         wiring.check_node("sim", ("tick",), ("state", "sensors"))

@@ -181,6 +181,10 @@ class ClockNode(Node):
             if (stats := self.decode(event)) is not None:
                 self.faults[stats.service] = stats.counters
             return
+        if event.topic == "end":  # a participant ends the session early (docs/protocol.md, session/end)
+            if (end := self.decode(event)) is not None and self.finished_at is None:
+                self.finish(now, f"ended by the {end.by} at step {max(self.core.reached, 0)}: {end.reason}")
+            return
         service = event.key.rsplit("/", 1)[-1]
         if event.topic == "alive":
             self.present.add(service)
@@ -370,9 +374,9 @@ class ClockNode(Node):
                            f"{self.rejoin_timeout:g} s", now)
                 return
 
-    def finish(self, now: float) -> None:
+    def finish(self, now: float, reason: str = "") -> None:
         self.finished_at = now
-        self.set_state("finished", "", now)
+        self.set_state("finished", reason, now)
         st = self.core.stats(now)
         log(self.name, f"finished {st['steps']} steps in {st['wall_time']:.2f} s "
             f"({st['rate']:.0f} steps/s, RTF {st['rtf']:.2f}, late ticks {st['late_ticks']}, resends {st['resends']}, "

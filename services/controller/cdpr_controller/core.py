@@ -99,7 +99,9 @@ class ControllerCore:
     def rows(self) -> list[int]:
         return list(controlled_rows(self.robot, self.variant))
 
-    def step(self, state: State, setpoint: Setpoint) -> TdaResult:
+    def step(self, state: State, setpoint: Setpoint, residual: Array | None = None) -> TdaResult:
+        """The tensions of step k. ``residual``: a wrench on the controlled rows added to the law's before the
+        distribution (a learned residual policy's, :mod:`cdpr.gym`); None adds nothing."""
         # Eq. 6–7 by cdpr.mechanics.control.FeedbackLaw and W by cdpr.mechanics.kinematics.WrenchMatrix, both set
         # up once:
         # the same numbers as feedback_linearisation and inverse_kinematics, without their per-call work.
@@ -111,4 +113,6 @@ class ControllerCore:
             # c·l̇ on top of the tension) is a known external wrench of eq. 5: compensate it like gravity.
             rates = -(W6.T @ np.asarray(state.twist))  # l̇ = J v, J = −Wᵀ
             wrench = wrench - W @ (self.robot.cable_damping * rates)
+        if residual is not None:
+            wrench = wrench + residual
         return self.tda.solve(W, wrench, self._tmin, self._tmax)

@@ -64,6 +64,12 @@ class SimNode(Node):
 
     make_core = staticmethod(make_sim)  # the model: .step(values), .message(clamped) (sim/state), .state()
 
+    @staticmethod
+    def make_sensors(scenario: Scenario) -> SensorSuite | None:
+        """The scenario's sensors (``sim.sensors``; None without), to ``read(model)`` once per step."""
+        spec = scenario.spec.sim.sensors
+        return None if spec is None else SensorSuite(SensorConfig.from_spec(spec, scenario.robot.m), scenario.dt)
+
     def __init__(self, scenario: Scenario, keys: Keys) -> None:
         super().__init__(keys)
         self.scenario = scenario
@@ -80,8 +86,7 @@ class SimNode(Node):
         self._pub: zenoh.Publisher | None = None
         self.command_kind = scenario.output  # "tensions" or "lengths": the commands this sim takes
         sensors = scenario.spec.sim.sensors
-        self.sensors = None if sensors is None else SensorSuite(SensorConfig.from_spec(sensors, self.m),
-                                                                  scenario.dt)
+        self.sensors = self.make_sensors(scenario)
         self._sensors_pub: zenoh.Publisher | None = None
         seed = 0 if sensors is None else sensors.seed
         self.cameras = CameraSuite(scenario.cameras, seed) if scenario.cameras else None

@@ -41,6 +41,7 @@ SESSION_RE = re.compile(r"^[A-Za-z0-9_-]{1,64}$")
 
 # Service names that can hold a liveliness token `cdpr/{session}/alive/{name}`: the nodes of the wiring table.
 SERVICES = tuple(WIRING)
+END_REASON_MAX = 200  # characters of a session/end's reason
 
 
 _PLACEHOLDER = re.compile(r"\{(node|camera)\}")  # where a topic's key names its node, or a camera
@@ -800,6 +801,29 @@ class Resume:
     @classmethod
     def decode(cls, payload: bytes) -> Resume:
         return cls.from_map(unpack(payload))
+
+
+@dataclass(frozen=True, slots=True)
+class End:
+    """``session/end``: a participant asks the clock to end the session now, as ``finished`` (a learning
+    environment whose episode ended before the trajectory did). ``by``: who asks (a service name);
+    ``reason``: one line, in the clock's status and log."""
+
+    by: str
+    reason: str
+
+    def encode(self) -> bytes:
+        return pack({"by": self.by, "reason": self.reason})
+
+    @classmethod
+    def decode(cls, payload: bytes) -> End:
+        msg = unpack(payload)
+        by, reason = _field(msg, "by"), _field(msg, "reason")
+        if not isinstance(by, str) or by not in SERVICES:
+            raise ProtocolError(f"by: expected one of {', '.join(SERVICES)}, got {by!r}")
+        if not isinstance(reason, str) or len(reason) > END_REASON_MAX or "\n" in reason:
+            raise ProtocolError(f"reason: expected one line of at most {END_REASON_MAX} characters")
+        return cls(by, reason)
 
 
 @dataclass(frozen=True, slots=True)

@@ -40,6 +40,7 @@ TOPICS: dict[str, Topic] = {
     "camera_image": Topic("sim/camera/{camera}/image", "CameraImage", "bad_camera_image"),
     "info": Topic("session/info", "SessionInfo", transport="queryable"),
     "resume": Topic("session/resume", "Resume", "bad_resume"),
+    "end": Topic("session/end", "End", "bad_end"),
     "stats": Topic("stats/{node}", "ServiceStats", "bad_stats"),
     "alive": Topic("alive/{node}", "", transport="liveliness"),
     "ping": Topic("ping/{node}", "", transport="queryable"),  # answers a get with its payload (cdpr ping)
@@ -56,12 +57,13 @@ class NodeWiring:
 EVERY_NODE = NodeWiring(subscribes=("status",), publishes=("stats", "alive", "ping"))
 
 WIRING: dict[str, NodeWiring] = {
-    "clock": NodeWiring(subscribes=("telemetry", "stats"), publishes=("tick", "status", "info", "resume")),
+    "clock": NodeWiring(subscribes=("telemetry", "stats", "end"), publishes=("tick", "status", "info", "resume")),
     "sim": NodeWiring(subscribes=("tick", "command", "resume"),
                       publishes=("state", "telemetry", "sensors", "camera", "camera_image")),
     "trajectory": NodeWiring(subscribes=("tick",), publishes=("setpoints",)),
     # camera: the frames of an image-based visual servo (controller.law: ibvs)
-    "controller": NodeWiring(subscribes=("state", "setpoints", "camera"), publishes=("command",)),
+    # end: a controller may end the session early (a learning environment's episode: cdpr.gym)
+    "controller": NodeWiring(subscribes=("state", "setpoints", "camera"), publishes=("command", "end")),
     "recorder": NodeWiring(subscribes=("telemetry", "setpoints", "camera", "camera_image"), publishes=()),
     # the session on ROS 2's wire (rmw_zenoh); "command" only while a ROS 2 controller is there (docs/ros2.md)
     "ros2": NodeWiring(subscribes=("tick", "state", "setpoints", "sensors"), publishes=("command",)),

@@ -496,13 +496,14 @@ def serve(node: Node, conf: zenoh.Config, stop: StopFlag | None = None) -> int:
 
 
 def serve_composed(nodes: list[Node], session: zenoh.Session, stop: StopFlag | None = None,
-                   on_turn: Callable[[], None] | None = None) -> int:
+                   on_turn: Callable[[], None] | None = None, freeze: bool = True) -> int:
     """Run ``nodes`` in this process on one open Zenoh ``session`` until every one is done (ROS 2's
     composition, Drake's diagram): the same node classes as their own processes, the same topics and
     messages, delivered by Zenoh within the session (synchronously, on the publishing thread). Every
     node is handled directly (each by its own dispatcher: a node's handlers never overlap, a node that
     publishes to itself gets the message after its handler returns). ``on_turn`` runs once per turn of
     the main loop (the launcher's progress line). The exit code: 128 + signal, else the nodes' worst.
+    ``freeze=False`` leaves the garbage collector alone (a library serving a node per episode, :mod:`cdpr.gym`).
     """
     stop = stop or StopFlag().install()
     wake = threading.Event()
@@ -518,7 +519,8 @@ def serve_composed(nodes: list[Node], session: zenoh.Session, stop: StopFlag | N
             host.close()
 
     try:
-        _freeze()  # before the first token (see serve)
+        if freeze:
+            _freeze()  # before the first token (see serve)
         for node in nodes:
             dispatcher = _Dispatcher(node, _event_handler(node), wake, stop)
             runners.append((node, dispatcher, _ServedNode(node, session, Inbox(dispatcher), None)))

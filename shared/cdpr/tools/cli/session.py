@@ -6,6 +6,7 @@ import os
 import sys
 import threading
 from collections.abc import Callable
+from pathlib import Path
 from typing import Any, NoReturn
 
 import click
@@ -123,15 +124,38 @@ def _leave(code: int, at_once: bool) -> NoReturn:
               help="also run the ros2 node: the session's topics on ROS 2 (rmw_zenoh); with --without controller a "
                    "ROS 2 node is the controller (docs/ros2.md)")
 @click.option("--ros-namespace", default="/cdpr", show_default=True, help="--ros2: the namespace of the topics")
+@click.option("--episodes", type=click.IntRange(0), default=1, show_default=True, metavar="N",
+              help="run the session N times back to back under the same id (0: until interrupted), for a "
+                   "participant that joins one after the other: a learning environment in session mode "
+                   "(docs/learning.md). Recordings and summaries get _e0001, _e0002 ... before their extension")
 @click.option("--quiet", is_flag=True, help="no progress line")
 def up(**kw: Any) -> None:
     """Run the services of SCENARIO except --without ones, and wait for those to join over Zenoh."""
+    from cdpr.runtime.transport import log
     from cdpr.tools.launch import RunOptions, run_session
 
     scenario = _load(kw.pop("scenario"), kw.pop("duration"))
     _check_sync(kw)
-    # the normal exit: the router may still be forwarding the end to remote participants
-    sys.exit(run_session(scenario, RunOptions(**kw)))
+    episodes = kw.pop("episodes")
+    if episodes == 1:
+        # the normal exit: the router may still be forwarding the end to remote participants
+        sys.exit(run_session(scenario, RunOptions(**kw)))
+    worst, n = 0, 0
+    while episodes == 0 or n < episodes:
+        n += 1
+        paths = {k: _episode_path(kw[k], n) for k in ("rrd", "mcap", "summary") if kw.get(k)}
+        log("cdpr", f"episode {n}{'' if episodes == 0 else f' of {episodes}'}")
+        code = run_session(scenario, RunOptions(**{**kw, **paths}))
+        if code >= 128:  # interrupted: no next episode
+            sys.exit(code)
+        worst = max(worst, code)
+    sys.exit(worst)
+
+
+def _episode_path(path: str, episode: int) -> str:
+    """``runs/x.rrd`` → ``runs/x_e0003.rrd``: episode 3's file."""
+    p = Path(path)
+    return str(p.with_name(f"{p.stem}_e{episode:04d}{p.suffix}"))
 
 
 @cli.command()
