@@ -39,12 +39,12 @@ def bench(tmp_path_factory: pytest.TempPathFactory) -> tuple[dict, str]:
 
 def test_top_level_and_machine(bench: tuple[dict, str]) -> None:
     r, _ = bench
-    assert r["version"] == 8
+    assert r["version"] == 9
     assert r["quick"] is True
     assert r["scenario"] == "caroca_15kg"
     for key in ("plan", "machine", "started", "elapsed_s", "monolithic", "distributed", "loops", "deliveries",
                 "startup", "zenoh_rtt", "realtime", "realtime_2khz", "tda", "scaling", "mujoco", "ros2", "cameras",
-                "targets"):
+                "gym", "targets"):
         assert key in r, key
     m = r["machine"]
     assert isinstance(m["nproc"], int)
@@ -52,7 +52,7 @@ def test_top_level_and_machine(bench: tuple[dict, str]) -> None:
     assert isinstance(m["cpu_model"], str)
     assert len(m["loadavg"]) == 3
     assert len(m["loadavg_end"]) == 3
-    parts = ["loops", "startup", "zenoh_rtt", "realtime", "tda", "scaling", "mujoco", "ros2", "cameras"]
+    parts = ["loops", "startup", "zenoh_rtt", "realtime", "tda", "scaling", "mujoco", "ros2", "cameras", "gym"]
     assert list(m["loadavg_by_part"]) == parts
     assert all(isinstance(x, float) and x >= 0 for x in m["loadavg_by_part"].values())
     assert _positive(r["elapsed_s"])
@@ -319,3 +319,20 @@ def test_what_cameras_cost_in_the_bench(bench: tuple[dict, str]) -> None:
         assert 0.0 <= cams["realtime"][name]["on_time_fraction"] <= 1.0
     assert "9 cameras" in text
     assert "camera_images_30hz_cost<=0.25" in r["targets"]
+
+
+def test_the_gymnasium_environment_in_the_bench(bench: tuple[dict, str]) -> None:
+    r, text = bench
+    g = r["gym"]
+    assert g["available"] is True
+    assert g["episode_steps"] == round(QUICK.gym_duration / load_scenario("caroca_15kg").dt)
+    for action in ("wrench", "residual", "tensions"):
+        assert _positive(g["local"][action]["first"])
+        assert _positive(g["local"][action]["later"])
+        assert len(g["local"][action]["runs"]["later"]) == QUICK.gym_rounds
+    assert g["local_to_monolithic"] == pytest.approx(g["local"]["wrench"]["later"] / g["monolithic_steps_per_s"])
+    assert g["session"]["sim_steps"] == round(QUICK.gym_session_duration / load_scenario("caroca_15kg").dt)
+    assert _positive(g["session"]["sim_steps_per_s"])
+    assert _positive(g["vector"]["async_2"]["sim_steps_per_s"])
+    assert "10 the Gymnasium environment" in text
+    assert "gym_local/monolithic>=2" in r["targets"]

@@ -294,6 +294,48 @@ def test_session_with_a_controller_on_the_host(project: list[Project], tmp_path:
     assert host_report(rrd, tmp_path / "report")["steps"] == STEPS
 
 
+def test_a_learning_environment_on_the_host_completes_episodes(project: list[Project], tmp_path: Path) -> None:
+    """cdpr/Track-v0 in session mode is the stack's controller: one episode per `up`, twice (the router stays up
+    between them), the second ended early by the environment (session/end) and the stack still returning 0."""
+    p = Project(tmp_path)
+    project.append(p)
+    code = f"""
+import json, sys, numpy as np, gymnasium as gym, cdpr.gym
+env = gym.make("cdpr/Track-v0", scenario="caroca_15kg", duration={DURATION!r}, connect="tcp/127.0.0.1:{p.port}",
+               session="{p.session}", session_timeout=240.0)
+obs, _ = env.reset(seed=0)
+steps, done = 0, False
+while not done and steps < int(sys.argv[1]):
+    obs, reward, terminated, truncated, info = env.step(np.zeros(6, dtype=np.float32))
+    steps, done = steps + 1, terminated or truncated
+env.close()
+print(json.dumps({{"env_steps": steps, "truncated": bool(done), "sim_step": info["step"]}}))
+"""
+    for limit, expected in ((10_000, STEPS), (50, None)):
+        out = (tmp_path / "up.log").open("w")
+        up = subprocess.Popen(p.session_command("--scale", "controller=0"), stdout=out, stderr=subprocess.STDOUT,
+                              env=p.env, cwd=ROOT)
+        try:
+            learner = subprocess.run([sys.executable, "-c", code, str(limit)], capture_output=True, text=True,
+                                     timeout=SESSION_TIMEOUT, env=HOST_ENV, check=False)
+            status = up.wait(timeout=120)
+        finally:
+            if up.poll() is None:
+                up.kill()
+                up.wait()
+            out.close()
+        log = (tmp_path / "up.log").read_text()
+        assert learner.returncode == 0, learner.stderr[-3000:] + log[-2000:]
+        result = json.loads(learner.stdout.strip().splitlines()[-1])
+        assert status == 0, log[-3000:] + p.report()
+        if expected is not None:  # to the trajectory's end: truncated at the last state
+            assert result == {"env_steps": STEPS // 10, "truncated": True, "sim_step": STEPS}, result
+            assert finished(log) == STEPS
+        else:  # ended by the environment after 50 env steps
+            assert result["env_steps"] == 50
+            assert "ended by the controller at step" in log, log[-3000:]
+
+
 def test_a_ros2_controller_on_the_host_through_the_ros2_profile(project: list[Project], tmp_path: Path) -> None:
     """`--profile ros2 up --scale controller=0 ... clock ros2`: the ros2 service in its container, and a ROS 2
     controller on the host (zenoh-ros2-sdk, a peer of the router's mapped port, as rmw_zenoh's nodes are)."""

@@ -192,17 +192,18 @@ def test_vectorised_sync_and_async_give_the_same_observations() -> None:
 # Session mode
 
 
-def test_session_mode_joins_cdpr_up_and_gives_the_local_observations(tmp_path: Path) -> None:
+@pytest.mark.parametrize("scenario", ["caroca_15kg", "caroca_15kg_winch"])  # winch: sensors, elastic cables, lengths
+def test_session_mode_joins_cdpr_up_and_gives_the_local_observations(tmp_path: Path, scenario: str) -> None:
     """Two episodes of `cdpr up --without controller --episodes 2`: the first to its end, the second ended by
     the environment after 10 env steps (session/end); the local env, same seed and actions, sees the same."""
     port = free_port()
     summary = tmp_path / "up.json"
-    up = subprocess.Popen([sys.executable, "-m", "cdpr", "up", "caroca_15kg", "--duration", "0.3", "--without",
+    up = subprocess.Popen([sys.executable, "-m", "cdpr", "up", scenario, "--duration", "0.3", "--without",
                            "controller", "--listen", f"tcp/127.0.0.1:{port}", "--episodes", "2", "--quiet",
                            "--summary", str(summary)], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     try:
-        local = TrackEnv(duration=0.3)
-        remote = TrackEnv(duration=0.3, connect=f"tcp/127.0.0.1:{port}", session_timeout=UP_TIMEOUT)
+        local = TrackEnv(scenario, duration=0.3)
+        remote = TrackEnv(scenario, duration=0.3, connect=f"tcp/127.0.0.1:{port}", session_timeout=UP_TIMEOUT)
         rng = np.random.default_rng(7)
         actions = [rng.uniform(-1, 1, 6).astype(np.float32) for _ in range(30)]
         infos = []
@@ -247,3 +248,56 @@ def test_session_mode_refuses_a_session_of_another_scenario() -> None:
     finally:
         up.kill()
         up.communicate()
+
+
+# --------------------------------------------------------------------------------------------------
+# A trained policy as a session's controller
+
+
+def test_cdpr_run_with_the_zero_policy_is_the_plain_session_bit_for_bit(tmp_path: Path) -> None:
+    """`cdpr run --policy` joins the session through the env's session mode; a zero residual is the law itself."""
+    plain = subprocess.run([sys.executable, "-m", "cdpr", "run", "caroca_15kg", "--duration", "0.5", "--quiet"],
+                           capture_output=True, text=True, timeout=UP_TIMEOUT, check=False)
+    rrd = tmp_path / "policy.rrd"
+    policy = subprocess.run([sys.executable, "-m", "cdpr", "run", "caroca_15kg", "--duration", "0.5", "--quiet",
+                             "--policy", "cdpr.gym.policy:zero", "--rrd", str(rrd)],
+                            capture_output=True, text=True, timeout=UP_TIMEOUT, check=False)
+    assert plain.returncode == 0, plain.stderr[-3000:]
+    assert policy.returncode == 0, policy.stderr[-3000:]
+    a, b = last_json_line(plain.stdout), last_json_line(policy.stdout)
+    assert b["steps"] == 500
+    assert b["state_digest"] == a["state_digest"]  # every state of the session, bit for bit
+    assert rrd.stat().st_size > 0
+
+
+def test_a_bad_policy_is_one_line_and_exit_code_2(tmp_path: Path) -> None:
+    for policy, message in (("nowhere:policy", "policy nowhere:policy: No module named 'nowhere'"),
+                            ("cdpr.gym.policy:ALGORITHMS", "policy cdpr.gym.policy:ALGORITHMS: not a function"),
+                            (str(tmp_path / "missing.zip"), "policy: no such file")):
+        run = subprocess.run([sys.executable, "-m", "cdpr", "run", "caroca_15kg", "--duration", "0.1", "--policy",
+                              policy], capture_output=True, text=True, timeout=UP_TIMEOUT, check=False)
+        assert run.returncode == 2, run.stderr[-2000:]
+        assert message in run.stderr
+
+
+def test_a_model_carries_its_environment_options_beside_it(tmp_path: Path) -> None:
+    from cdpr.gym.policy import env_options
+
+    model = tmp_path / "m.zip"
+    assert env_options(str(model)) == {}
+    (tmp_path / "m.env.json").write_text('{"action": "wrench", "normalize": true}')
+    assert env_options(str(model)) == {"action": "wrench", "normalize": True}
+    (tmp_path / "m.env.json").write_text('{"speed": 3}')
+    with pytest.raises(InputError, match=r"m\.env\.json: a map of action, control_every, normalize, reward_weights, "
+                                         r"limits \(unknown: speed\)"):
+        env_options(str(model))
+
+
+def test_normalised_observations_are_the_raw_ones_mapped_onto_the_unit_box() -> None:
+    raw, unit = TrackEnv(duration=0.1), TrackEnv(duration=0.1, normalize=True)
+    a, _ = raw.reset(seed=0)
+    b, _ = unit.reset(seed=0)
+    low, high = raw.observation_space.low, raw.observation_space.high
+    np.testing.assert_allclose(b, (a - (high + low) / 2) / ((high - low) / 2), rtol=1e-6, atol=1e-7)
+    assert unit.observation_space.contains(b)
+    assert np.all(unit.observation_space.low == -1.0)

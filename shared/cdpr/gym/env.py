@@ -58,6 +58,7 @@ class TrackEnv(gym.Env[np.ndarray, np.ndarray]):
         session: str = "default",
         zenoh_config: str | None = None,
         session_timeout: float = 120.0,
+        normalize: bool = False,
         render_mode: str | None = None,
     ) -> None:
         if render_mode is not None:
@@ -72,6 +73,12 @@ class TrackEnv(gym.Env[np.ndarray, np.ndarray]):
         self.task = Task(self.base, action, control_every, RewardWeights.of(reward_weights), bounds)
         self._check_scenario(self.base)
         low, high = self.task.bounds()
+        # normalize: the same observation mapped affinely from its bounds onto [-1, 1] (a fixed map, no running
+        # statistics: a policy trained on it runs unchanged in session mode and in `cdpr run --policy`)
+        self.normalize = bool(normalize)
+        self._mid, self._half = (high.astype(np.float64) + low) / 2.0, (high.astype(np.float64) - low) / 2.0
+        if self.normalize:
+            low, high = -np.ones_like(low), np.ones_like(high)
         self.observation_space = spaces.Box(low, high, dtype=np.float32)
         self.action_space = spaces.Box(-1.0, 1.0, (self.task.action_size,), dtype=np.float32)
         self.randomizer = None if not randomize else Randomizer(scenario, randomize, duration)
@@ -114,7 +121,7 @@ class TrackEnv(gym.Env[np.ndarray, np.ndarray]):
         self._previous = None
         self._sq_sum, self._count, self._infeasible, self._return = 0.0, 0, 0, 0.0
         r = self._reached
-        return self.task.observe(r.state, r.setpoint, r.sensors), {"step": r.state.step}
+        return self._observe(r), {"step": r.state.step}
 
     def step(self, action: np.ndarray) -> tuple[np.ndarray, float, bool, bool, dict[str, Any]]:
         if self._reached is None:
@@ -156,8 +163,13 @@ class TrackEnv(gym.Env[np.ndarray, np.ndarray]):
                 "rms_position_error": math.sqrt(self._sq_sum / self._count) if self._count else None,
                 "steps": self._count, "infeasible_commands": self._infeasible, "return": self._return,
             }
-        obs = task.observe(state, setpoint, reached.sensors)
-        return obs, float(reward), terminated, truncated, info
+        return self._observe(reached), float(reward), terminated, truncated, info
+
+    def _observe(self, reached: Reached) -> np.ndarray:
+        obs = self.task.observe(reached.state, reached.setpoint, reached.sensors)
+        if not self.normalize:
+            return obs
+        return np.clip((obs - self._mid) / self._half, -1.0, 1.0).astype(np.float32)
 
     def _commander(self, a: Array) -> Any:
         """The (state k, setpoint k) → command k function of this env step's action."""

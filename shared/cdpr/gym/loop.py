@@ -233,12 +233,15 @@ class SessionLoop:
         """End the current episode's session (unless it has ended) and wait for its clock to be gone."""
         if self.thread is None:
             return
-        if self._ended() is None and self.node is not None and (pub := self.node.publishers.get("end")) is not None:
+        # after the final state the session ends by itself (the clock may not have heard of that state yet)
+        final = self.info is not None and max(self.states, default=-1) >= self.info.total_steps
+        if self._ended() is None and not final and self.node is not None and \
+                (pub := self.node.publishers.get("end")) is not None:
             with contextlib.suppress(zenoh.ZError):
                 pub.put(End("controller", reason[:200]).encode())
-            deadline = time.monotonic() + 10.0
-            while self._ended() is None and time.monotonic() < deadline:
-                self._next(deadline)
+        deadline = time.monotonic() + 10.0
+        while self._ended() is None and time.monotonic() < deadline:
+            self._next(deadline)
         assert self.stop is not None
         self.stop.set()
         self.thread.join(timeout=10.0)

@@ -21,7 +21,8 @@ when the machine is shared and its absolute speed drifts):
 5. ``tda``: the tension distribution's solve time per method for 4, 8, 12 and 16 cables, along a
    smooth path (as in the loop: warm), on random well-conditioned robots built here;
 6. ``scaling``: steps/s and CPU per step with 1, 2, 4, 8 concurrent sessions, and with 4 → 16 cables
-   (generated robot and scenario files in a temporary directory).
+   (generated robot and scenario files in a temporary directory);
+7–10. the MuJoCo peer, a ROS 2 controller, cameras, the Gymnasium environment (their modules' docstrings).
 
 Medians over repeats; ``--quick`` runs every part, shorter, in under two minutes. Results are printed
 as a table and written as JSON. The Linux ``/proc`` file system gives the per-process CPU figures
@@ -146,6 +147,8 @@ def targets(result: dict[str, Any]) -> dict[str, dict[str, Any]]:
         out["camera_features_60hz_cost<=0.05"] = target(x := cams["features_60hz_cost"], x <= 0.05)
         out["camera_images_30hz_cost<=0.25"] = target(x := cams["images_30hz_cost"], x <= 0.25)
         out["camera_images_realtime_drop_points<=0.2"] = target(x := cams["realtime_on_time_drop_points"], x <= 0.2)
+    if (g := result.get("gym", {})).get("available"):  # #27
+        out["gym_local/monolithic>=2"] = target(x := g["local_to_monolithic"], x >= 2.0)
     return out
 
 
@@ -167,7 +170,7 @@ def run_bench(plan: BenchPlan, scenario: str = "caroca_15kg", out: Path | None =
 
     def part(name: str, message: str) -> None:
         load[name] = os.getloadavg()[0]
-        log(f"{len(load)}/9 {message}")
+        log(f"{len(load)}/10 {message}")
 
     part("loops", f"distributed loop: multi-process, recording (.rrd; .rrd and .mcap), in-process (x "
                   f"{plan.loop_repeats}), each after the monolithic loop ({plan.mono_steps} steps)")
@@ -212,6 +215,12 @@ def run_bench(plan: BenchPlan, scenario: str = "caroca_15kg", out: Path | None =
     from cdpr.tools.bench.cameras import bench_cameras
 
     result["cameras"] = bench_cameras(plan.camera_duration, plan.camera_repeats, plan.camera_realtime_duration)
+    part("gym", f"the Gymnasium environment: local mode per action space beside the monolithic loop (x "
+                f"{plan.gym_rounds}), session mode, two envs vectorised")
+    from cdpr.tools.bench.gym import bench_gym
+
+    result["gym"] = bench_gym(scenario, plan.gym_duration, plan.gym_rounds, plan.gym_session_duration,
+                              plan.gym_vector_steps)
     result["machine"]["loadavg_end"] = list(os.getloadavg())
     result["elapsed_s"] = time.monotonic() - started
     result["targets"] = targets(result)
@@ -372,6 +381,21 @@ def table(r: dict[str, Any]) -> str:
         )]
     else:
         lines.append(f"    {cams['reason']}")
+    lines += ["", "10 the Gymnasium environment (cdpr/Track-v0, 10 sim steps per env step), sim steps/s"]
+    g = r.get("gym") or {"available": False, "reason": "not run"}
+    if g["available"]:
+        local, ses, vec = g["local"], g["session"], g["vector"]
+        lines += [f"    {name:48s} {value:>22s}" for name, value in (
+            ("monolithic loop in the same minutes", _fmt(g["monolithic_steps_per_s"])),
+            *((f"local, {a}: first episode / later ones", f"{_fmt(local[a]['first'])} / {_fmt(local[a]['later'])}")
+              for a in local),
+            ("    wrench, later episodes / monolithic", _fmt(g["local_to_monolithic"], 2)),
+            (f"session mode (cdpr up, {ses['duration_s']:g} s), residual", _fmt(ses["sim_steps_per_s"])),
+            ("2 local envs, SyncVectorEnv / AsyncVectorEnv, wrench",
+             f"{_fmt(vec['sync_2']['sim_steps_per_s'])} / {_fmt(vec['async_2']['sim_steps_per_s'])}"),
+        )]
+    else:
+        lines.append(f"    {g['reason']}")
     lines += ["", "targets"]
     lines += [target_line(name, t) for name, t in r["targets"].items()]
     return "\n".join(lines)

@@ -5,13 +5,13 @@ from __future__ import annotations
 import sys
 from dataclasses import dataclass
 
-BENCH_VERSION = 8  # 2: loop variants (recording, in-process), deliveries, start-up; 3: the recorder writing
+BENCH_VERSION = 9  # 2: loop variants (recording, in-process), deliveries, start-up; 3: the recorder writing
 # an .rrd and an .mcap (loops.multi_process_recording_both, loops.recording_both_cost, its target); 4: the
 # monolithic loop measured before each run of a variant (M A M B M C M D), no longer first and apart; 5: the
 # MuJoCo peer (mujoco: its loop beside the monolithic one, the engines' agreement; its target); 6: realtime paced by
 # the sim (lateness: each step's start after its deadline), 2 kHz (realtime_2khz), --cpu-latency runs, the
 # monolithic loop messaging as protocol 2 does (windows, blocks); 7: a ROS 2 controller's session beside the cdpr
-# controller's (ros2); 8: what cameras cost (cameras)
+# controller's (ros2); 8: what cameras cost (cameras); 9: the Gymnasium environment's speed (gym)
 
 
 @dataclass(frozen=True)
@@ -37,6 +37,10 @@ class BenchPlan:
     camera_duration: float = 6.0  # sim seconds of each fast-mode session of the cameras part
     camera_repeats: int = 3  # rounds of (no camera, features, images)
     camera_realtime_duration: float = 30.0  # sim seconds of each realtime session of the cameras part
+    gym_duration: float | None = None  # sim seconds of each episode of the gym part (None: the scenario's)
+    gym_rounds: int = 3  # rounds of (monolithic, env) per action space
+    gym_session_duration: float = 4.0  # sim seconds of the session-mode episode
+    gym_vector_steps: int = 1000  # env steps of each vectorised run (2 envs)
 
 
 FULL = BenchPlan(
@@ -49,6 +53,7 @@ QUICK = BenchPlan(
     realtime_duration=3.0, realtime_2khz_duration=3.0, tda_sizes=(4, 8, 16), tda_calls=400,
     session_counts=(1, 2, 4), session_duration=3.0, cable_counts=(4, 16), cable_duration=3.0,
     ros2_duration=4.0, ros2_repeats=1, camera_duration=3.0, camera_repeats=1, camera_realtime_duration=3.0,
+    gym_duration=2.0, gym_rounds=1, gym_session_duration=1.0, gym_vector_steps=100,
 )
 
 

@@ -77,6 +77,15 @@ def _run_options(f: Callable[..., Any]) -> Callable[..., Any]:
 @click.option("--in-process", is_flag=True,
               help="every node in this process on one private Zenoh session (composition): same nodes, "
                    "same messages, no process start-up")
+@click.option("--policy", default=None, metavar="POLICY",
+              help="a trained policy is the controller: a Stable-Baselines3 model (*.zip) or module:function, "
+                   "acting through cdpr/Track-v0 in session mode (docs/learning.md)")
+@click.option("--policy-action", type=click.Choice(["residual", "wrench", "tensions"]), default=None,
+              help="--policy: its action space (default: the model's .env.json, else residual)")
+@click.option("--control-every", type=click.IntRange(1), default=None,
+              help="--policy: sim steps per policy step (default: the model's .env.json, else 10)")
+@click.option("--algo", type=click.Choice(["sac", "ppo", "td3", "a2c", "ddpg"]), default="sac", show_default=True,
+              help="--policy: a model file's algorithm")
 def run(**kw: Any) -> None:
     """Run SCENARIO end to end: every service as a child process on a private loopback network.
 
@@ -84,9 +93,41 @@ def run(**kw: Any) -> None:
     """
     from cdpr.tools.launch import RunOptions, run_session
 
+    policy, action, every, algo = (kw.pop(k) for k in ("policy", "policy_action", "control_every", "algo"))
     scenario = _load(kw.pop("scenario"), kw.pop("duration"))
     _check_sync(kw)
+    if policy is not None:
+        if kw["in_process"]:
+            raise click.UsageError("--policy: the policy joins the session as its own process (no --in-process)")
+        _leave(_run_policy(scenario, RunOptions(**kw), policy, action, every, algo), at_once=True)
     _leave(run_session(scenario, RunOptions(**kw)), at_once=not kw["in_process"])
+
+
+def _run_policy(scenario: Any, opts: Any, policy: str, action: str | None, every: int | None, algo: str) -> int:
+    """The session with ``policy`` as its controller: a child process (``python -m cdpr.gym.policy``) joins the
+    launcher's router as any remote controller would."""
+    import dataclasses
+    import subprocess
+
+    from cdpr.gym.policy import env_options, load_policy
+    from cdpr.tools.launch import free_port, run_session
+
+    load_policy(policy, algo)  # a bad policy is an error here (exit code 2), not a session waiting for it
+    env_options(policy)
+    endpoint = f"tcp/127.0.0.1:{free_port()}"
+    given = [*(["--action", action] if action else []), *(["--control-every", str(every)] if every else [])]
+    child = subprocess.Popen([sys.executable, "-m", "cdpr.gym.policy", policy, "--scenario", scenario.source,
+                              "--duration", repr(scenario.duration), *given, "--algo", algo, "--connect", endpoint,
+                              "--session", opts.session_id], stdout=subprocess.DEVNULL)
+    try:
+        code = run_session(scenario, dataclasses.replace(opts, without=("controller",), listen=(endpoint,),
+                                                         join_timeout=opts.join_timeout or 120.0))
+        child_code = child.wait(timeout=60.0)
+    finally:
+        if child.poll() is None:
+            child.kill()
+            child.wait()
+    return code if child_code == 0 or code >= 128 else max(code, 1)
 
 
 def _check_sync(kw: dict[str, Any]) -> None:
