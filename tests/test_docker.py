@@ -260,31 +260,40 @@ def _wait_for(what: str, predicate: object, timeout: float, report: object) -> N
         time.sleep(0.5)
 
 
-def test_session_with_a_controller_on_the_host(project: list[Project], tmp_path: Path) -> None:
-    p = Project(tmp_path)
-    project.append(p)
+def _with_host_controller(p: Project, tmp_path: Path, argv: list[str], before: object = None,
+                          ) -> tuple[subprocess.CompletedProcess[str], int, str]:
+    """`up --scale controller=0` and ``argv`` on the host as its controller (after ``before()``, if given): the
+    controller's run, the stack's exit code, the stack's log."""
     out = (tmp_path / "up.log").open("w")
     up = subprocess.Popen(p.session_command("--scale", "controller=0"), stdout=out, stderr=subprocess.STDOUT,
                           env=p.env, cwd=ROOT)
-    remote = None
     try:
-        # The clock says whom it waits for, and the healthchecks show who has joined the session.
-        _wait_for("the clock to wait for the controller",
-                  lambda: "[clock] waiting for controller to join" in _try(lambda: p.logs("clock")), 180, p.report)
-        _wait_for("every container to be healthy",
-                  lambda: all(_try(lambda s=s: p.inspect(s)["State"]["Health"]["Status"]) == "healthy"
-                              for s in ("router", "clock", "sim", "trajectory", "recorder")), 60, p.report)
-        remote = subprocess.run([sys.executable, str(EXAMPLE), "--connect", f"tcp/127.0.0.1:{p.port}",
-                                 "--session", p.session], capture_output=True, text=True, timeout=SESSION_TIMEOUT,
-                                env=HOST_ENV, check=False)
+        if before is not None:
+            before()  # type: ignore[operator]
+        host = subprocess.run(argv, capture_output=True, text=True, timeout=SESSION_TIMEOUT, env=HOST_ENV,
+                              check=False)
         code = up.wait(timeout=120)
     finally:
         if up.poll() is None:
             up.kill()
             up.wait()
         out.close()
-    log = (tmp_path / "up.log").read_text()
-    assert remote is not None
+    return host, code, (tmp_path / "up.log").read_text()
+
+
+def test_session_with_a_controller_on_the_host(project: list[Project], tmp_path: Path) -> None:
+    p = Project(tmp_path)
+    project.append(p)
+
+    def joined() -> None:  # the clock says whom it waits for, and the healthchecks show who has joined the session
+        _wait_for("the clock to wait for the controller",
+                  lambda: "[clock] waiting for controller to join" in _try(lambda: p.logs("clock")), 180, p.report)
+        _wait_for("every container to be healthy",
+                  lambda: all(_try(lambda s=s: p.inspect(s)["State"]["Health"]["Status"]) == "healthy"
+                              for s in ("router", "clock", "sim", "trajectory", "recorder")), 60, p.report)
+
+    remote, code, log = _with_host_controller(p, tmp_path, [sys.executable, str(EXAMPLE), "--connect",
+                                                            f"tcp/127.0.0.1:{p.port}", "--session", p.session], joined)
     assert remote.returncode == 0, remote.stderr[-3000:]
     assert re.search(rf"answered \d+ states up to step {STEPS - 1} ", remote.stderr), remote.stderr[-3000:]
     assert code == 0, log[-3000:] + p.report()
@@ -312,19 +321,7 @@ env.close()
 print(json.dumps({{"env_steps": steps, "truncated": bool(done), "sim_step": info["step"]}}))
 """
     for limit, expected in ((10_000, STEPS), (50, None)):
-        out = (tmp_path / "up.log").open("w")
-        up = subprocess.Popen(p.session_command("--scale", "controller=0"), stdout=out, stderr=subprocess.STDOUT,
-                              env=p.env, cwd=ROOT)
-        try:
-            learner = subprocess.run([sys.executable, "-c", code, str(limit)], capture_output=True, text=True,
-                                     timeout=SESSION_TIMEOUT, env=HOST_ENV, check=False)
-            status = up.wait(timeout=120)
-        finally:
-            if up.poll() is None:
-                up.kill()
-                up.wait()
-            out.close()
-        log = (tmp_path / "up.log").read_text()
+        learner, status, log = _with_host_controller(p, tmp_path, [sys.executable, "-c", code, str(limit)])
         assert learner.returncode == 0, learner.stderr[-3000:] + log[-2000:]
         result = json.loads(learner.stdout.strip().splitlines()[-1])
         assert status == 0, log[-3000:] + p.report()

@@ -301,3 +301,48 @@ def test_normalised_observations_are_the_raw_ones_mapped_onto_the_unit_box() -> 
     np.testing.assert_allclose(b, (a - (high + low) / 2) / ((high - low) / 2), rtol=1e-6, atol=1e-7)
     assert unit.observation_space.contains(b)
     assert np.all(unit.observation_space.low == -1.0)
+
+
+def test_the_session_waits_while_the_environment_does_not_step() -> None:
+    """Lock-step: between two env steps nothing moves. A listener of sim/state hears no state beyond the one
+    the env was given while the env sleeps (the clock may only repeat it), then the episode goes on."""
+    import time
+
+    import zenoh
+
+    from cdpr.protocol import Keys, State
+    from cdpr.runtime.transport import zenoh_config
+
+    port = free_port()
+    up = subprocess.Popen([sys.executable, "-m", "cdpr", "up", "caroca_15kg", "--duration", "0.2", "--without",
+                           "controller", "--listen", f"tcp/127.0.0.1:{port}", "--quiet"],
+                          stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    heard: list[int] = []
+    try:
+        env = TrackEnv(duration=0.2, connect=f"tcp/127.0.0.1:{port}", session_timeout=UP_TIMEOUT)
+        env.reset(seed=0)
+        for _ in range(5):
+            env.step(zeros(env))
+        conf = zenoh_config("client", [f"tcp/127.0.0.1:{port}"])
+        with zenoh.open(conf) as z:
+            sub = z.declare_subscriber(Keys("default").state,
+                                       lambda s: heard.append(State.decode(s.payload.to_bytes()).step))
+            time.sleep(1.5)  # the environment is busy elsewhere (a training update)
+            during = list(heard)
+            _, _, _, truncated, info = env.step(zeros(env))  # the listener hears the loop go on
+            assert info["step"] == 60
+            deadline = time.monotonic() + 10.0
+            while 60 not in heard and time.monotonic() < deadline:
+                time.sleep(0.01)
+            sub.undeclare()
+        while not truncated:
+            _, _, _, truncated, info = env.step(zeros(env))
+        env.close()
+        _, err = up.communicate(timeout=UP_TIMEOUT)
+    finally:
+        if up.poll() is None:
+            up.kill()
+            up.communicate()
+    assert set(during) <= {50}, during  # nothing beyond the state the env holds (a resend of it at most)
+    assert set(range(51, 61)) <= set(heard), heard
+    assert up.returncode == 0, err[-3000:]

@@ -184,16 +184,22 @@ class SessionLoop:
         self.info: SessionInfo | None = None
         self.answers: dict[int, Command] = {}
         self.step = 0
+        self._clocks_gone = threading.Semaphore(0)
+        self._watch: Any = None
 
     # -- the session's life --------------------------------------------------------------------------
     def _open(self) -> zenoh.Session:
         if self.zenoh is None:
             self.zenoh = open_session(self.conf, "gym")
-        return self.zenoh
+            # every clock that leaves (its token deleted, or the link to it lost): the next session is a new clock
+            self._clocks_gone = threading.Semaphore(0)
 
-    def _clock_alive(self) -> bool:
-        z = self._open()
-        return any(r.ok is not None for r in z.liveliness().get(self.keys.alive("clock"), timeout=1.0))
+            def on_token(sample: zenoh.Sample) -> None:
+                if sample.kind == zenoh.SampleKind.DELETE:
+                    self._clocks_gone.release()
+
+            self._watch = self.zenoh.liveliness().declare_subscriber(self.keys.alive("clock"), on_token)
+        return self.zenoh
 
     def _fetch_info(self, deadline: float) -> SessionInfo:
         z = self._open()
@@ -215,6 +221,8 @@ class SessionLoop:
                              f"{info.total_steps} steps, {info.robot.m} cables), this environment {scenario.name} "
                              f"(dt {scenario.dt:g} s, {scenario.total_steps} steps, {scenario.robot.m} cables)")
         self.info = info
+        while self._clocks_gone.acquire(blocking=False):  # clocks gone before this session: not this one
+            pass
         self.events = queue.SimpleQueue()
         self.states, self.setpoints, self.sensors, self.answers = {}, {}, {}, {}
         self.status, self.last_setpoint, self.step = None, None, 0
@@ -246,10 +254,9 @@ class SessionLoop:
         self.stop.set()
         self.thread.join(timeout=10.0)
         self.thread = None
-        # the next session has a new clock: wait until this one has gone (it lingers a moment after the end)
-        deadline = time.monotonic() + 15.0
-        while self._clock_alive() and time.monotonic() < deadline:
-            time.sleep(0.1)
+        # the next session has a new clock: wait until this one has gone (it lingers a moment after the end, and
+        # until then it still answers session/info)
+        self._clocks_gone.acquire(timeout=15.0)
 
     # -- the events ----------------------------------------------------------------------------------
     def _next(self, deadline: float) -> None:
@@ -347,5 +354,6 @@ class SessionLoop:
             self._leave("the environment was closed")
         finally:
             if self.zenoh is not None:
+                self._watch.undeclare()
                 self.zenoh.close()
                 self.zenoh = None
