@@ -163,6 +163,8 @@ class SimNode(Node):
         self._pub.put(msg.encode())
         self.published_at = time.monotonic()
         if self.published_step == self.step:
+            if self.sensors is not None and self._sensors_pub is not None:  # a repeated state: its readings too
+                self._sensors_pub.put(self.sensors.read(self.sim).encode())  # (the same reading: read once per step)
             return
         self.published_step = self.step
         self.block_states.append(msg)

@@ -13,12 +13,10 @@ from __future__ import annotations
 
 import contextlib
 import math
-import queue
 import threading
 import time
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
-from functools import partial
 from typing import Any
 
 import numpy as np
@@ -121,35 +119,103 @@ def _cached(setpoint_at: Callable[[int], Setpoint]) -> Callable[[int], Setpoint]
 
 
 class _EnvNode(Node):
-    """The environment's side of the protocol in a session: a controller whose answers come from another
-    thread. Its handlers only queue what arrives (on Zenoh's thread: they never wait)."""
+    """The environment's side of the protocol in a session: a controller whose answers come from the env's
+    commander of the current env step. Its handlers run on Zenoh's receive thread (as the controller service's
+    do: no thread hand-off between a state and its command); the env's thread only sets a window of steps to
+    answer and waits, under :attr:`lock`, until the loop has reached its end."""
 
     name = "controller"
 
-    def __init__(self, keys: Keys, m: int, sensors: bool, inbox: queue.SimpleQueue[tuple[str, Any]]) -> None:
+    def __init__(self, keys: Keys, m: int, sensors: bool, total_steps: int) -> None:
         super().__init__(keys)
         self.m = m
         self.with_sensors = sensors
-        self.out = inbox
+        self.total_steps = total_steps
+        self.lock = threading.Condition()
+        self.states: dict[int, State] = {}
+        self.setpoints: dict[int, Setpoint] = {}
+        self.sensors: dict[int, Sensors] = {}
+        self.last_setpoint: Setpoint | None = None
+        self.status: Status | None = None
+        self.answers: dict[int, Command] = {}  # the last answer, for a state the clock asks for again
+        self.error: BaseException | None = None
+        # the window the env's thread opened: answer states step … stop − 1 with commander
+        self.commander: Commander | None = None
+        self.step = 0
+        self.stop = 0
+        self.errors: list[float] = []
+        self.applied: list[Sequence[float]] = []
 
     def declare(self, session: zenoh.Session, inbox: Inbox) -> list[Any]:
         # the sensors are not the controller's input in the wiring table: the environment reads them itself
         return [inbox.subscribe(session, self.keys.sensors, "sensors")] if self.with_sensors else []
 
     def handle(self, event: Event) -> None:
+        with self.lock:
+            try:
+                self._take(event)
+                self._answer()
+            except Exception as exc:  # a commander's error goes to the env's thread, which raises it
+                self.error = exc
+            self.lock.notify_all()
+
+    def _take(self, event: Event) -> None:
         if event.topic == "state":
-            if (state := self.decode(event, self.m)) is not None:
-                self.out.put(("state", state))
+            state = self.decode(event, self.m)
+            if state is None:
+                return
+            if (again := self.answers.get(state.step)) is not None:
+                self._publish(again)  # the clock asked for it again (a resend): the same answer
+            self.states[state.step] = state
         elif event.topic == "setpoints":
             if (block := self.decode(event)) is not None:
-                self.out.put(("setpoints", block))
+                self.setpoints.update((sp.step, sp) for sp in block.items if sp.step >= self.step)
+                if block.items:
+                    self.last_setpoint = block.items[-1]
         elif event.topic == "sensors":
             with contextlib.suppress(Exception):
-                self.out.put(("sensors", Sensors.decode(event.payload, self.m)))
+                sensors = Sensors.decode(event.payload, self.m)
+                self.sensors[sensors.step] = sensors
 
-    def on_status(self, status: Status) -> None:
-        super().on_status(status)
-        self.out.put(("status", status))
+    def _answer(self) -> None:
+        """Answer the window's next state if it and its setpoint are in (and record the one it led to)."""
+        while self.commander is not None:
+            k = self.step
+            if k >= self.stop or k not in self.states or k not in self.setpoints:
+                return
+            if self.answers and k in self.answers:  # answered: wait for state k + 1
+                if k + 1 not in self.states:
+                    return
+                self.applied.append(self.states[k + 1].tensions)
+                for cache in (self.states, self.setpoints, self.sensors):
+                    cache.pop(k, None)
+                self.step = k + 1
+                continue
+            state, setpoint = self.states[k], self.setpoints[k]
+            command = self.commander(state, setpoint)
+            self.answers = {k: command}
+            self._publish(command)
+            self.errors.append(math.dist(state.pose[:3], setpoint.pose[:3]))
+
+    def _publish(self, command: Command) -> None:
+        with contextlib.suppress(zenoh.ZError):
+            self.publishers["command"].put(command.encode())
+
+    def on_status(self, status: Status) -> None:  # the env's thread decides when the node leaves
+        with self.lock:
+            self.status = status
+            self.lock.notify_all()
+
+    def ended(self) -> str | None:
+        s = self.status
+        if s is None or s.state not in ("finished", "aborted"):
+            return None
+        return s.state + (f": {s.reason}" if s.reason else "")
+
+    def ready(self, step: int) -> bool:
+        """State ``step`` is in, with its setpoint (none for the final state) and its sensor readings."""
+        return (step in self.states and (step >= self.total_steps or step in self.setpoints)
+                and (not self.with_sensors or step in self.sensors))
 
 
 class SessionLoop:
@@ -172,18 +238,10 @@ class SessionLoop:
         self.endpoints = endpoints
         self.timeout = float(timeout)
         self.zenoh: zenoh.Session | None = None
-        self.events: queue.SimpleQueue[tuple[str, Any]] = queue.SimpleQueue()
         self.thread: threading.Thread | None = None
         self.stop: StopFlag | None = None
         self.node: _EnvNode | None = None
-        self.states: dict[int, State] = {}
-        self.setpoints: dict[int, Setpoint] = {}
-        self.sensors: dict[int, Sensors] = {}
-        self.last_setpoint: Setpoint | None = None
-        self.status: Status | None = None
         self.info: SessionInfo | None = None
-        self.answers: dict[int, Command] = {}
-        self.step = 0
         self._clocks_gone = threading.Semaphore(0)
         self._watch: Any = None
 
@@ -191,10 +249,9 @@ class SessionLoop:
     def _open(self) -> zenoh.Session:
         if self.zenoh is None:
             self.zenoh = open_session(self.conf, "gym")
-            # every clock that leaves (its token deleted, or the link to it lost): the next session is a new clock
-            self._clocks_gone = threading.Semaphore(0)
 
             def on_token(sample: zenoh.Sample) -> None:
+                # every clock that leaves (its token deleted, or the link to it lost): the next session is a new clock
                 if sample.kind == zenoh.SampleKind.DELETE:
                     self._clocks_gone.release()
 
@@ -223,10 +280,7 @@ class SessionLoop:
         self.info = info
         while self._clocks_gone.acquire(blocking=False):  # clocks gone before this session: not this one
             pass
-        self.events = queue.SimpleQueue()
-        self.states, self.setpoints, self.sensors, self.answers = {}, {}, {}, {}
-        self.status, self.last_setpoint, self.step = None, None, 0
-        self.node = _EnvNode(self.keys, scenario.robot.m, scenario.spec.sim.sensors is not None, self.events)
+        self.node = _EnvNode(self.keys, scenario.robot.m, scenario.spec.sim.sensors is not None, info.total_steps)
         self.stop = StopFlag()
         node, stop, z = self.node, self.stop, self._open()
         self.thread = threading.Thread(target=serve_composed, args=([node], z, stop), kwargs={"freeze": False},
@@ -239,17 +293,17 @@ class SessionLoop:
 
     def _leave(self, reason: str) -> None:
         """End the current episode's session (unless it has ended) and wait for its clock to be gone."""
-        if self.thread is None:
+        node = self.node
+        if self.thread is None or node is None:
             return
-        # after the final state the session ends by itself (the clock may not have heard of that state yet)
-        final = self.info is not None and max(self.states, default=-1) >= self.info.total_steps
-        if self._ended() is None and not final and self.node is not None and \
-                (pub := self.node.publishers.get("end")) is not None:
-            with contextlib.suppress(zenoh.ZError):
-                pub.put(End("controller", reason[:200]).encode())
-        deadline = time.monotonic() + 10.0
-        while self._ended() is None and time.monotonic() < deadline:
-            self._next(deadline)
+        with node.lock:
+            node.commander = None
+            # after the final state the session ends by itself (the clock may not have heard of that state yet)
+            final = max(node.states, default=-1) >= node.total_steps
+            if node.ended() is None and not final and (pub := node.publishers.get("end")) is not None:
+                with contextlib.suppress(zenoh.ZError):
+                    pub.put(End("controller", reason[:200]).encode())
+            node.lock.wait_for(lambda: node.ended() is not None, timeout=10.0)
         assert self.stop is not None
         self.stop.set()
         self.thread.join(timeout=10.0)
@@ -258,91 +312,45 @@ class SessionLoop:
         # until then it still answers session/info)
         self._clocks_gone.acquire(timeout=15.0)
 
-    # -- the events ----------------------------------------------------------------------------------
-    def _next(self, deadline: float) -> None:
-        """Take one event (or time out at ``deadline``) into the caches; answer a state asked for again."""
-        try:
-            kind, item = self.events.get(timeout=max(0.0, deadline - time.monotonic()))
-        except queue.Empty:
-            return
-        if kind == "status":
-            self.status = item
-        elif kind == "sensors":
-            self.sensors[item.step] = item
-        elif kind == "setpoints":
-            self.setpoints.update((sp.step, sp) for sp in item.items if sp.step >= self.step)
-            if item.items:
-                self.last_setpoint = item.items[-1]
-        elif kind == "state":
-            if (again := self.answers.get(item.step)) is not None:
-                self._publish(again)  # the clock asked for it again (a resend): the same answer
-            self.states[item.step] = item
-
-    def _ended(self) -> str | None:
-        s = self.status
-        if s is None or s.state not in ("finished", "aborted"):
-            return None
-        return s.state + (f": {s.reason}" if s.reason else "")
-
-    def _wait(self, ready: Callable[[], bool], deadline: float, what: str) -> str | None:
-        """Take events until ``ready()``; the session's end (finished/aborted, with its reason) if it came first."""
-        while not ready():
-            if (ended := self._ended()) is not None:
-                return ended
-            if time.monotonic() > deadline:
-                raise TimeoutError(f"session {self.keys.session!r}: no {what} within {self.timeout:g} s")
-            self._next(deadline)
-        return None
-
     def _reached(self, step: int, deadline: float) -> Reached:
-        """State ``step`` with its setpoint (the last one for the final state) and its sensor readings."""
-        want_sensors = self.node is not None and self.node.with_sensors
-        final = self.info is not None and step >= self.info.total_steps  # the last state has no setpoint
-
-        def ready() -> bool:
-            return (step in self.states and (final or step in self.setpoints)
-                    and (not want_sensors or step in self.sensors))
-
-        ended = self._wait(ready, deadline, f"state {step}")
-        if ended is not None:
-            if not self.states or self.last_setpoint is None:
-                raise RuntimeError(f"session {self.keys.session!r} {ended}")
-            step = max(self.states)
-        setpoint = self.setpoints.get(step) or self.last_setpoint
-        assert setpoint is not None
-        return Reached(self.states[step], setpoint, self.sensors.get(step), ended=ended)
-
-    def _publish(self, command: Command) -> None:
-        assert self.node is not None
-        with contextlib.suppress(zenoh.ZError):
-            self.node.publishers["command"].put(command.encode())
+        """Wait for state ``step`` (with its setpoint, the last one for the final state, and its sensor readings),
+        or the session's end (then the last state heard)."""
+        node = self.node
+        assert node is not None
+        with node.lock:
+            done = node.lock.wait_for(lambda: node.error is not None or node.ready(step) or node.ended() is not None,
+                                      timeout=max(0.0, deadline - time.monotonic()))
+            if node.error is not None:
+                error, node.error = node.error, None
+                raise error
+            if not done:
+                raise TimeoutError(f"session {self.keys.session!r}: no state {step} within {self.timeout:g} s")
+            ended = None if node.ready(step) else node.ended()
+            if ended is not None:
+                if not node.states or node.last_setpoint is None:
+                    raise RuntimeError(f"session {self.keys.session!r} {ended}")
+                step = max(node.states)
+            setpoint = node.setpoints.get(step) or node.last_setpoint
+            assert setpoint is not None
+            return Reached(node.states[step], setpoint, node.sensors.get(step), ended=ended)
 
     def run(self, n: int, commander: Commander) -> Reached:
-        errors: list[float] = []
-        applied: list[Sequence[float]] = []
-        ended: str | None = None
-        for _ in range(n):
-            k = self.step
-            ended = self._wait(partial(self.setpoints.__contains__, k), time.monotonic() + self.timeout,
-                               f"setpoint {k}")
-            if ended is not None:
-                break
-            state, setpoint = self.states[k], self.setpoints[k]
-            command = commander(state, setpoint)
-            self.answers = {k: command}
-            self._publish(command)
-            errors.append(math.dist(state.pose[:3], setpoint.pose[:3]))
-            ended = self._wait(partial(self.states.__contains__, k + 1), time.monotonic() + self.timeout,
-                               f"state {k + 1}")
-            if ended is not None:
-                break
-            applied.append(self.states[k + 1].tensions)
-            for cache in (self.states, self.setpoints, self.sensors):
-                cache.pop(k, None)
-            self.step = k + 1
-        reached = self._reached(self.step, time.monotonic() + self.timeout)
-        reached.errors, reached.applied = errors, applied
-        reached.ended = reached.ended or ended
+        node = self.node
+        assert node is not None
+        with node.lock:
+            node.commander, node.stop, node.errors, node.applied = commander, node.step + n, [], []
+            stop = node.stop
+            try:
+                node._answer()  # the window's first state is in: answer it now
+            except Exception:
+                node.commander = None
+                raise
+        try:
+            reached = self._reached(stop, time.monotonic() + self.timeout)
+        finally:
+            with node.lock:
+                node.commander = None
+        reached.errors, reached.applied = node.errors, node.applied
         return reached
 
     def end(self, reason: str) -> None:
