@@ -23,7 +23,7 @@ from cdpr.config.scenario import load_scenario
 from cdpr.errors import InputError
 from cdpr.gym.env import TrackEnv
 from cdpr.gym.task import Task
-from conftest import free_port, last_json_line
+from conftest import ROOT, free_port, last_json_line
 
 ACTIONS = ("residual", "wrench", "tensions")
 UP_TIMEOUT = 120.0  # s: a bound for a short session's processes, never a measurement
@@ -278,6 +278,26 @@ def test_a_bad_policy_is_one_line_and_exit_code_2(tmp_path: Path) -> None:
                               policy], capture_output=True, text=True, timeout=UP_TIMEOUT, check=False)
         assert run.returncode == 2, run.stderr[-2000:]
         assert message in run.stderr
+
+
+def test_the_policys_model_may_differ_from_the_plant(tmp_path: Path) -> None:
+    """--policy-model: the env (its controller's model) takes another scenario than the plant's; a bad one is exit 2."""
+    plant = str(ROOT / "examples" / "learning" / "caroca_17kg.yaml")  # caroca_15kg's motion, a 17.25 kg platform
+    runs = {}
+    for model in (None, "caroca_15kg"):
+        run = subprocess.run([sys.executable, "-m", "cdpr", "run", plant, "--duration", "0.5", "--quiet", "--policy",
+                              "cdpr.gym.policy:zero", *(["--policy-model", model] if model else [])],
+                             capture_output=True, text=True, timeout=UP_TIMEOUT, check=False)
+        assert run.returncode == 0, run.stderr[-3000:]
+        runs[model] = last_json_line(run.stdout)
+    # the law trusting a 15 kg model sags under 17.25 kg: a tracking error the matched model does not have
+    assert runs["caroca_15kg"]["rms_position_error"] > 3 * runs[None]["rms_position_error"]
+    bad = subprocess.run([sys.executable, "-m", "cdpr", "run", plant, "--duration", "0.1", "--policy",
+                          "cdpr.gym.policy:zero", "--policy-model", str(tmp_path / "none.yaml")],
+                         capture_output=True, text=True, timeout=UP_TIMEOUT, check=False)
+    assert bad.returncode == 2, bad.stderr[-2000:]
+    assert "none.yaml" in bad.stderr
+    assert len(bad.stderr.strip().splitlines()) == 1
 
 
 def test_a_model_carries_its_environment_options_beside_it(tmp_path: Path) -> None:

@@ -70,7 +70,7 @@ def read_rows(csv_path: Path) -> list[dict[str, str]]:
      "parameters.0.colour: unknown key (check its spelling)"),
 ])
 def test_a_bad_study_file_is_one_line_naming_the_field(tmp_path: Path, change: str, message: str) -> None:
-    from cdpr.tools.study.spec import load_study
+    from cdpr.config.study import load_study
 
     path = write(tmp_path, "name: bad\nscenario: caroca_15kg\n" + change)
     with pytest.raises(InputError) as err:
@@ -125,8 +125,8 @@ def test_without_ray_the_study_commands_say_how_to_get_it(tmp_path: Path) -> Non
 
 def test_points_grids_times_draws_reproducible_and_plant_only(tmp_path: Path) -> None:
     from cdpr.config.scenario import load_scenario
-    from cdpr.tools.study.points import check_point, load_base, study_points, write_point_files
-    from cdpr.tools.study.spec import load_study
+    from cdpr.config.study import load_study
+    from cdpr.config.variation import check_point, load_base, study_points, write_point_files
 
     spec, path = load_study(write(tmp_path, MONTE_CARLO))
     base = load_base(spec, path)

@@ -219,8 +219,8 @@ class Randomizer:
 
     def __init__(self, scenario: str, parameters: Sequence[dict[str, Any]], duration: float | None) -> None:
         from cdpr.config.loading import parse_model
-        from cdpr.tools.study.points import load_base
-        from cdpr.tools.study.spec import StudySpec
+        from cdpr.config.study import StudySpec
+        from cdpr.config.variation import load_base
 
         doc = {"name": "randomize", "scenario": scenario, "parameters": list(parameters), "samples": 1}
         if duration is not None:
@@ -231,7 +231,7 @@ class Randomizer:
 
     def draw(self, sample: int) -> tuple[Scenario, Scenario]:
         """(the plant's scenario, the controller's) of one draw."""
-        from cdpr.tools.study.points import build_point
+        from cdpr.config.variation import build_point
 
         point = build_point(self.spec, self.base, 0, {}, sample, "randomize")
         folder = Path(self.folder.name)

@@ -86,6 +86,9 @@ def _run_options(f: Callable[..., Any]) -> Callable[..., Any]:
               help="--policy: sim steps per policy step (default: the model's .env.json, else 10)")
 @click.option("--algo", type=click.Choice(["sac", "ppo", "td3", "a2c", "ddpg"]), default="sac", show_default=True,
               help="--policy: a model file's algorithm")
+@click.option("--policy-model", default=None, metavar="SCENARIO",
+              help="--policy: the scenario its environment takes as the controller's model (default: SCENARIO; "
+                   "another mass, say, is a model error only the plant has)")
 def run(**kw: Any) -> None:
     """Run SCENARIO end to end: every service as a child process on a private loopback network.
 
@@ -93,17 +96,19 @@ def run(**kw: Any) -> None:
     """
     from cdpr.tools.launch import RunOptions, run_session
 
-    policy, action, every, algo = (kw.pop(k) for k in ("policy", "policy_action", "control_every", "algo"))
+    policy, action, every, algo, model = (kw.pop(k) for k in ("policy", "policy_action", "control_every", "algo",
+                                                                  "policy_model"))
     scenario = _load(kw.pop("scenario"), kw.pop("duration"))
     _check_sync(kw)
     if policy is not None:
         if kw["in_process"]:
             raise click.UsageError("--policy: the policy joins the session as its own process (no --in-process)")
-        _leave(_run_policy(scenario, RunOptions(**kw), policy, action, every, algo), at_once=True)
+        _leave(_run_policy(scenario, RunOptions(**kw), policy, action, every, algo, model), at_once=True)
     _leave(run_session(scenario, RunOptions(**kw)), at_once=not kw["in_process"])
 
 
-def _run_policy(scenario: Any, opts: Any, policy: str, action: str | None, every: int | None, algo: str) -> int:
+def _run_policy(scenario: Any, opts: Any, policy: str, action: str | None, every: int | None, algo: str,
+                model: str | None) -> int:
     """The session with ``policy`` as its controller: a child process (``python -m cdpr.gym.policy``) joins the
     launcher's router as any remote controller would."""
     import dataclasses
@@ -116,7 +121,9 @@ def _run_policy(scenario: Any, opts: Any, policy: str, action: str | None, every
     env_options(policy)
     endpoint = f"tcp/127.0.0.1:{free_port()}"
     given = [*(["--action", action] if action else []), *(["--control-every", str(every)] if every else [])]
-    child = subprocess.Popen([sys.executable, "-m", "cdpr.gym.policy", policy, "--scenario", scenario.source,
+    if model is not None:
+        _load(model, scenario.duration)  # a bad model scenario: exit code 2 here
+    child = subprocess.Popen([sys.executable, "-m", "cdpr.gym.policy", policy, "--scenario", model or scenario.source,
                               "--duration", repr(scenario.duration), *given, "--algo", algo, "--connect", endpoint,
                               "--session", opts.session_id], stdout=subprocess.DEVNULL)
     try:

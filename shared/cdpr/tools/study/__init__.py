@@ -13,9 +13,9 @@ only when a study runs.
 
 from __future__ import annotations
 
+from cdpr.config.study import StudySpec, load_study
 from cdpr.tools.study.bench import study_throughput
 from cdpr.tools.study.engine import run_study
-from cdpr.tools.study.spec import StudySpec, load_study
 from cdpr.tools.study.tune import run_tune
 
 __all__ = ["StudySpec", "load_study", "run_study", "run_tune", "study_throughput"]

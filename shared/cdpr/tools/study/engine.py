@@ -19,10 +19,10 @@ from typing import Any
 
 import yaml
 
+from cdpr.config.study import StudySpec, load_study
+from cdpr.config.variation import Base, Point, check_point, load_base, study_points, write_point_files
 from cdpr.errors import InputError
-from cdpr.tools.study.points import Base, Point, check_point, load_base, study_points, write_point_files
 from cdpr.tools.study.runner import resolve_mode, run_point
-from cdpr.tools.study.spec import StudySpec, load_study
 from cdpr.tools.study.table import markdown_summary, metrics_of, row_columns, write_table
 
 RAY_MISSING = "cdpr study and cdpr tune need Ray: pip install 'cdpr[study]' (ray[tune], optuna, pyarrow)"

@@ -9,7 +9,7 @@ from typing import Any
 
 import numpy as np
 
-from cdpr.tools.study.spec import METRICS, StudySpec
+from cdpr.config.study import METRICS, StudySpec
 
 SCALE = {"m": (1e3, "mm"), "rad": (1e3, "mrad")}  # shown in readable units
 

@@ -7,7 +7,7 @@ import math
 from pathlib import Path
 from typing import Any
 
-from cdpr.tools.study.spec import SUMMARY_METRICS, StudySpec
+from cdpr.config.study import SUMMARY_METRICS, StudySpec
 
 TOLERANCE = 1e-9  # N: a tension this close to a limit is within it
 

@@ -27,11 +27,11 @@ from typing import Any
 import yaml
 
 from cdpr.config.loading import read_yaml
+from cdpr.config.study import ParameterSpec, StudySpec, load_study
+from cdpr.config.variation import Base, build_point, check_point, load_base, matches, write_point_files
 from cdpr.errors import InputError
 from cdpr.tools.study.engine import Progress, connect_ray, need_ray, resolved_study
-from cdpr.tools.study.points import Base, build_point, check_point, load_base, matches, write_point_files
 from cdpr.tools.study.runner import resolve_mode, run_point
-from cdpr.tools.study.spec import ParameterSpec, StudySpec, load_study
 from cdpr.tools.study.table import metrics_of, write_table
 
 PENALTY = 1e6  # objective of an infeasible trial (plus the violation's size)

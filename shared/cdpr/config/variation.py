@@ -27,8 +27,8 @@ import yaml
 from cdpr.config.loading import parse_model, read_yaml, resolve
 from cdpr.config.robot import RobotSpec
 from cdpr.config.scenario import ScenarioSpec
+from cdpr.config.study import ParameterSpec, StudySpec
 from cdpr.errors import InputError
-from cdpr.tools.study.spec import ParameterSpec, StudySpec
 
 
 @dataclass
