@@ -34,9 +34,11 @@ EXAMPLE = ROOT / "examples" / "remote_controller.py"
 SESSION_SERVICES = ("clock", "sim", "trajectory", "recorder")
 LOOP_SERVICES = ("clock", "sim", "trajectory", "controller")  # the lock-step loop (compose.realtime.yaml)
 IMAGES = {"router": "cdpr:stack", "clock": "cdpr:stack", "trajectory": "cdpr:stack", "controller": "cdpr:stack",
-          "sim": "cdpr:sim", "recorder": "cdpr:recorder", "ros2": "cdpr:stack"}
-PROFILES = {"ros2": ["ros2"]}  # services that run only with `--profile NAME`
-BUILDS = {"router": "stack", "sim": "sim", "recorder": "recorder"}  # the one service that builds each image
+          "sim": "cdpr:sim", "recorder": "cdpr:recorder", "ros2": "cdpr:stack",
+          "ray-head": "cdpr:study", "ray-worker": "cdpr:study", "study": "cdpr:study"}
+STUDY_SERVICES = ("ray-head", "ray-worker", "study")  # studies on Ray (docker/README.md "Studies on Ray")
+PROFILES = {"ros2": ["ros2"], **{name: ["study"] for name in STUDY_SERVICES}}  # run only with `--profile NAME`
+BUILDS = {"router": "stack", "sim": "sim", "recorder": "recorder", "ray-head": "study"}  # one builder per image
 ROUTER_PORT = 7447
 COMPOSE_BIN = shutil.which("docker-compose")
 NO_COMPOSE = "the docker-compose binary is absent (apt-get install -y --no-install-recommends docker-compose)"
@@ -237,21 +239,25 @@ def test_dockerfile_builds_one_image_per_role() -> None:
     assert not [ln for ln in every if ln.startswith("VOLUME")]  # no anonymous volume per container
     # Each role's virtualenv holds its install extras, listed by requirements.py from pyproject.toml.
     lists = " ".join(stages["requirements"])
-    for extras, role in (("stack", "stack"), ("sim camera", "sim"), ("record plots", "recorder")):
+    for extras, role in (("stack", "stack"), ("sim camera", "sim"), ("record plots", "recorder"),
+                         ("cluster", "study")):
         assert f"pyproject.toml {extras} >/build/{role}.txt" in lists
         assert f"COPY --from=requirements /build/{role}.txt /build/" in stages[f"deps-{role}"]
         assert any(f"pip install -r /build/{role}.txt" in ln for ln in stages[f"deps-{role}"])
     for role in ("sim", "recorder"):  # the light image's dependencies are built once, for all three
         assert stages[f"deps-{role}"][0] == f"FROM deps-stack AS deps-{role}"
-    for role, entrypoint in (("stack", "cdpr"), ("sim", "cdpr"), ("recorder", "cdpr-entrypoint")):
+    assert stages["deps-study"][0] == "FROM deps-sim AS deps-study"  # a Ray node runs the sim's sessions
+    for role, entrypoint in (("stack", "cdpr"), ("sim", "cdpr"), ("recorder", "cdpr-entrypoint"), ("study", "cdpr")):
         lines = stages[role]
         assert lines[0] == f"FROM base AS {role}", role
         assert f"COPY --from=venv-{role} /opt/cdpr /opt/cdpr" in lines, role
         assert f'ENTRYPOINT ["{entrypoint}"]' in lines, role
     assert "USER cdpr" in stages["stack"]
     assert "USER cdpr" in stages["sim"]
+    assert "USER cdpr" in stages["study"]
     assert "USER" not in " ".join(stages["recorder"])  # root, then the folder's owner (entrypoint.sh)
     assert "COPY --from=gl /gl/ /usr/local/lib/" in stages["sim"]  # libGL, libX11 for dartpy
+    assert "COPY --from=gl /gl/ /usr/local/lib/" in stages["study"]
     assert any("import dartpy" in ln for ln in stages["sim"])  # checked at build time
     assert any("--no-viewer" in ln for ln in stages["venv-recorder"])
     # What the Dockerfile copies is in the build context the root .dockerignore lets through.
@@ -275,21 +281,25 @@ def test_requirements_of_each_role() -> None:
         sys.path.pop(0)
     pyproject = str(ROOT / "pyproject.toml")
     names = {role: {re.split(r"[<>=!~\[ ;]", r, maxsplit=1)[0] for r in requirements(pyproject, extras)}
-             for role, extras in (("stack", ["stack"]), ("sim", ["sim", "camera"]), ("recorder", ["record", "plots"]))}
+             for role, extras in (("stack", ["stack"]), ("sim", ["sim", "camera"]), ("recorder", ["record", "plots"]),
+                                  ("study", ["cluster"]))}
     base = {"eclipse-zenoh", "msgpack", "msgspec", "numpy", "scipy", "qpsolvers", "osqp", "pyyaml", "pydantic", "click",
             "setproctitle"}
     assert names["stack"] == base
     assert names["sim"] == base | {"dartpy", "opencv-python-headless"}  # camera images (docs/cameras.md)
     assert base | {"rerun-sdk", "matplotlib"} <= names["recorder"]
     assert "dartpy" not in names["recorder"]
+    assert names["sim"] | {"ray", "optuna", "pyarrow", "matplotlib"} == names["study"]
     with pytest.raises(SystemExit, match="no extra 'nope'"):
         requirements(pyproject, ["nope"])
 
 
 def test_compose_services_are_complete() -> None:
     services = load_compose([COMPOSE], {})
-    assert set(services) == {"router", *SESSION_SERVICES, "controller", "ros2"}
+    assert set(services) == {"router", *SESSION_SERVICES, "controller", "ros2", *STUDY_SERVICES}
     for name, s in services.items():
+        if name in STUDY_SERVICES:  # not session services: test_the_study_profile_is_a_ray_cluster
+            continue
         assert s["image"] == IMAGES[name], name
         assert s.get("profiles") == PROFILES.get(name), name
         assert s["stop_grace_period"] == "10s", name
@@ -348,6 +358,37 @@ def test_compose_services_are_complete() -> None:
         assert cmd[cmd.index("--session") + 1] == "s1"
 
 
+def test_the_study_profile_is_a_ray_cluster() -> None:
+    services = load_compose([COMPOSE], {})
+    head, worker, driver = (services[n] for n in STUDY_SERVICES)
+    for s in (head, worker, driver):
+        assert s["image"] == "cdpr:study"
+        assert s["profiles"] == ["study"]
+    assert head["build"]["target"] == "study"
+    assert head["build"]["args"] == {"BASE": "python:3.11-slim", "RAY_VERSION": ""}
+    assert worker["pull_policy"] == driver["pull_policy"] == "never"
+    for s in (head, worker):
+        assert s["entrypoint"] == ["ray"]
+        assert command_of(s)[:2] == ["start", "--address" if s is worker else "--head"]
+        assert "--block" in command_of(s)
+    cmd = command_of(head)
+    assert cmd[cmd.index("--num-cpus") + 1] == "0"  # the head schedules; points run on the workers
+    assert cmd[cmd.index("--ray-client-server-port") + 1] == "10001"
+    assert head["ports"] == ["10001:10001", "6379:6379", "8265:8265"]
+    assert worker["depends_on"] == {"ray-head": {"condition": "service_healthy"}}
+    assert command_of(worker)[command_of(worker).index("--address") + 1] == "ray-head:6379"
+    assert driver["entrypoint"] == ["cdpr-entrypoint"]
+    assert driver["environment"] == {"CDPR_OWNED_DIR": "/runs"}
+    assert driver["volumes"] == ["../runs:/runs"]
+    over = load_compose([COMPOSE], {"CDPR_RAY_CLIENT_PORT": "11001", "CDPR_RAY_WORKER_CPUS": "2",
+                                    "CDPR_RAY_VERSION": "2.9.3", "CDPR_STUDIES": "/data/studies"})
+    assert over["ray-head"]["ports"][0] == "11001:10001"
+    assert over["ray-head"]["build"]["args"]["RAY_VERSION"] == "2.9.3"
+    cmd = command_of(over["ray-worker"])
+    assert cmd[cmd.index("--num-cpus") + 1] == "2"
+    assert over["study"]["volumes"] == ["/data/studies:/runs"]
+
+
 def test_secure_override_uses_tls_and_one_identity_per_service() -> None:
     plain = load_compose([COMPOSE], {})
     services = load_compose([COMPOSE, SECURE], {})
@@ -380,7 +421,7 @@ def test_realtime_override_schedules_the_loop_and_keeps_the_commands() -> None:
                 assert s["entrypoint"] == ["chrt", "--fifo", "20", "cdpr"], name
                 assert s["ulimits"] == {"rtprio": 99}, name
             else:
-                assert "entrypoint" not in s, name
+                assert s.get("entrypoint") == base[name].get("entrypoint"), name
                 assert "ulimits" not in s, name
     assert load_compose([COMPOSE, REALTIME], {})["sim"]["entrypoint"][2] == "10"
 

@@ -519,3 +519,125 @@ def test_a_sim_container_that_crashes_comes_back_and_the_session_goes_on(project
     whole = _run([sys.executable, "-m", "cdpr", "run", "caroca_15kg", "--duration", "4", "--in-process", "--quiet"],
                  timeout=300, env=HOST_ENV)
     assert summary["state_digest"] == json.loads(whole.stdout.strip().splitlines()[-1])["state_digest"]
+
+
+# -- Studies on a Ray cluster of containers (docker/README.md "Studies on Ray") ---------------------------
+
+RAY_STUDY = """\
+name: {name}
+scenario: caroca_15kg
+set: {{duration: 5.0}}
+samples: {samples}
+seed: {seed}
+mode: in-process
+parameters:
+  - {{name: mass_factor, path: platform.mass, op: scale, uniform: [0.9, 1.1]}}
+metrics: [rms_position_error, tension_min, tension_max, infeasible_commands]
+"""
+
+
+def _ray_version() -> str:
+    import ray
+
+    return str(ray.__version__)
+
+
+@pytest.fixture(scope="module")
+def study_image(engine: set[str], tmp_path_factory: pytest.TempPathFactory) -> str:
+    """cdpr:study, with the host's Ray (a Ray Client driver needs the cluster's Ray version)."""
+    log = tmp_path_factory.mktemp("build") / "study.log"
+    with log.open("w") as f:
+        proc = subprocess.run([*compose_command(), "-f", str(COMPOSE), "--profile", "study", "build", "ray-head"],
+                              stdout=f, stderr=subprocess.STDOUT, cwd=ROOT, timeout=BUILD_TIMEOUT, check=False,
+                              env={**_clean_env(), "CDPR_BASE": BASE, "CDPR_RAY_VERSION": _ray_version()})
+    assert proc.returncode == 0, log.read_text()[-4000:]
+    return "cdpr:study"
+
+
+def _study(p: Project, folder: Path, name: str, samples: int, seed: int) -> tuple[list[str], Path]:
+    """The host's `cdpr study` command of a study run through the project's head (Ray Client); its output folder."""
+    path = folder / f"{name}.yaml"
+    path.write_text(RAY_STUDY.format(name=name, samples=samples, seed=seed), encoding="utf-8")
+    out = folder / name
+    return [sys.executable, "-m", "cdpr", "study", str(path), "--quiet", "--out", str(out), "--address",
+            f"ray://127.0.0.1:{p.env['CDPR_RAY_CLIENT_PORT']}"], out
+
+
+def _rows(out: Path) -> list[dict[str, str]]:
+    import csv
+
+    with (out / "results.csv").open(newline="", encoding="utf-8") as f:
+        return list(csv.DictReader(f))
+
+
+def test_a_study_runs_on_a_ray_cluster_of_containers_and_survives_a_lost_worker(
+        study_image: str, project: list[Project], tmp_path: Path, engine: set[str]) -> None:
+    p = Project(tmp_path, COMPOSE, COMPOSE_PROFILES="study", CDPR_RAY_VERSION=_ray_version(),
+                CDPR_RAY_CLIENT_PORT=str(free_port()), CDPR_RAY_PORT=str(free_port()),
+                CDPR_RAY_DASHBOARD_PORT=str(free_port()))
+    project.append(p)
+    up = p.compose("up", "-d", "--scale", "ray-worker=2", "ray-head", "ray-worker", timeout=300)
+    assert up.returncode == 0, up.stdout[-2000:] + up.stderr[-3000:]
+    head = p.container("ray-head")
+    alive = ["python", "-c",
+             "import ray; ray.init(address='auto', logging_level='ERROR'); "
+             "print(sum(1 for n in ray.nodes() if n['Alive']))"]
+
+    def nodes() -> int:
+        proc = _run(["docker", "exec", head, *alive], timeout=60)
+        return int(proc.stdout.split()[-1]) if proc.returncode == 0 and proc.stdout.split() else 0
+
+    _wait_for("the head and two workers", lambda: nodes() == 3, 180, p.report)
+
+    # 16 points through the two workers (their throughput: docker/README.md)
+    argv, out = _study(p, tmp_path, "sixteen", 16, 2)
+    run = _run(argv, timeout=900, env=HOST_ENV)
+    assert run.returncode == 0, run.stderr[-3000:] + p.report()
+    two = json.loads(run.stdout.splitlines()[-1])
+    assert (two["points"], two["ok"], two["nodes"]) == (16, 16, 3), two
+    spread = _rows(out)
+    assert len({r["node"] for r in spread}) == 2, [r["node"] for r in spread]  # points on both workers
+    assert len({r["host"] for r in spread}) == 2
+    assert all(float(r["rms_position_error"]) < 1e-3 for r in spread)
+
+    # a worker killed during a study: every row still comes back (ok, or failed with its error)
+    argv, out = _study(p, tmp_path, "lost_worker", 16, 3)
+
+    def done() -> int:
+        return len(list((out / "points").glob("*/result.json"))) if (out / "points").is_dir() else 0
+
+    with subprocess.Popen(argv, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=HOST_ENV) as study:
+        try:
+            _wait_for("the study's first point", lambda: done() >= 1 or study.poll() is not None, 300, p.report)
+            assert study.poll() is None, study.communicate()[1][-3000:]
+            before = done()
+            workers = _run(["docker", "ps", "-q", "--filter", f"label=com.docker.compose.project={p.name}",
+                            "--filter", "label=com.docker.compose.service=ray-worker"]).stdout.split()
+            assert len(workers) == 2
+            assert _run(["docker", "kill", workers[0]]).returncode == 0
+            stdout, stderr = study.communicate(timeout=900)
+        finally:
+            if study.poll() is None:
+                study.kill()
+    assert before < 16  # the kill came while points were still running or waiting
+    assert study.returncode == 0, stderr[-3000:]
+    summary = json.loads(stdout.splitlines()[-1])
+    assert summary["points"] == 16, summary
+    rows = _rows(out)
+    assert len(rows) == 16
+    assert {r["status"] for r in rows} <= {"ok", "failed"}
+    assert all(r["error"] for r in rows if r["status"] == "failed")
+    print(f"\nlost worker: {summary['ok']} ok, {summary['failed']} failed of 16 ({before} finished before the kill)")
+
+    # the same 16 points one at a time on the worker left (one Ray CPU): one session alone, in the same mode
+    argv, out = _study(p, tmp_path, "one_at_a_time", 16, 2)
+    run = _run(argv, timeout=900, env=HOST_ENV)
+    assert run.returncode == 0, run.stderr[-3000:] + p.report()
+    one = json.loads(run.stdout.splitlines()[-1])
+    assert (one["ok"], one["nodes"]) == (16, 2), one
+    assert {r["state_digest"] for r in _rows(out)} == {r["state_digest"] for r in spread}  # the same sessions
+    print(f"16 points on 2 workers: {two['steps_per_s']:.0f} steps/s, one at a time: {one['steps_per_s']:.0f} "
+          f"steps/s: {two['steps_per_s'] / one['steps_per_s']:.2f}x")
+    p.down()
+    project.remove(p)
+    assert volumes() - engine == set()

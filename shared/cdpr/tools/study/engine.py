@@ -44,7 +44,11 @@ def connect_ray(address: str | None) -> dict[str, Any]:
     if not ray.is_initialized():
         address = address or os.environ.get("RAY_ADDRESS") or None
         if address:
-            ray.init(address=address, log_to_driver=False, logging_level=logging.WARNING)
+            try:
+                ray.init(address=address, log_to_driver=False, logging_level=logging.WARNING)
+            except (ConnectionError, TimeoutError, ValueError, RuntimeError) as exc:  # unreachable, no Ray Client
+                first = (str(exc).strip().splitlines() or [type(exc).__name__])[0]
+                raise InputError(f"--address {address}: {first}") from None
         else:
             ray.init(include_dashboard=False, log_to_driver=False, logging_level=logging.WARNING)
     return {"nodes": len([n for n in ray.nodes() if n.get("Alive")]), "cpus": ray.cluster_resources().get("CPU", 0)}
