@@ -572,7 +572,9 @@ def _rows(out: Path) -> list[dict[str, str]]:
 
 def test_a_study_runs_on_a_ray_cluster_of_containers_and_survives_a_lost_worker(
         study_image: str, project: list[Project], tmp_path: Path, engine: set[str]) -> None:
+    (tmp_path / "studies").mkdir()
     p = Project(tmp_path, COMPOSE, COMPOSE_PROFILES="study", CDPR_RAY_VERSION=_ray_version(),
+                CDPR_STUDIES=str(tmp_path / "studies"),
                 CDPR_RAY_CLIENT_PORT=str(free_port()), CDPR_RAY_PORT=str(free_port()),
                 CDPR_RAY_DASHBOARD_PORT=str(free_port()))
     project.append(p)
@@ -599,6 +601,15 @@ def test_a_study_runs_on_a_ray_cluster_of_containers_and_survives_a_lost_worker(
     assert len({r["node"] for r in spread}) == 2, [r["node"] for r in spread]  # points on both workers
     assert len({r["host"] for r in spread}) == 2
     assert all(float(r["rms_position_error"]) < 1e-3 for r in spread)
+
+    # the driver in a container of the cluster's network (the `study` service): files in CDPR_STUDIES
+    (studies := Path(p.env["CDPR_STUDIES"])).joinpath("four.yaml").write_text(
+        RAY_STUDY.format(name="four", samples=4, seed=2), encoding="utf-8")
+    inside = p.compose("run", "--rm", "-T", "study", "study", "/runs/four.yaml", "--quiet", "--address",
+                       "ray://ray-head:10001", "--out", "/runs/studies/four", timeout=600)
+    assert inside.returncode == 0, inside.stdout[-2000:] + inside.stderr[-3000:]
+    assert json.loads(inside.stdout.strip().splitlines()[-1])["ok"] == 4
+    assert len(_rows(studies / "studies" / "four")) == 4
 
     # a worker killed during a study: every row still comes back (ok, or failed with its error)
     argv, out = _study(p, tmp_path, "lost_worker", 16, 3)
