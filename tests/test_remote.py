@@ -291,16 +291,18 @@ def test_plain_example_imports_nothing_from_cdpr() -> None:
     assert {"zenoh", "msgpack"} <= modules
 
 
-def _up_with(example: str, session_id: str, duration: str, tmp_path: Path, *extra: str) -> tuple[dict[str, Any], str]:
+def _up_with(example: str, session_id: str, duration: str | None, tmp_path: Path, *extra: str,
+             scenario: str = "caroca_15kg") -> tuple[dict[str, Any], str]:
+    """`cdpr up SCENARIO --without controller` with ``examples/EXAMPLE`` as its controller: (summary, its log)."""
     endpoint = f"tcp/127.0.0.1:{free_port()}"
     procs = Processes()
     try:
-        up = procs.start("up", [*CDPR, "up", "caroca_15kg", "--duration", duration, "--session", session_id,
-                                "--without", "controller", "--listen", endpoint, "--quiet",
+        up = procs.start("up", [*CDPR, "up", scenario, *(["--duration", duration] if duration else []), "--session",
+                                session_id, "--without", "controller", "--listen", endpoint, "--quiet",
                                 "--join-timeout", "60", *extra], tmp_path, tmp_path / "up.log")
         procs.start("remote", [sys.executable, str(EXAMPLES / example), "--connect", endpoint,
                                "--session", session_id], tmp_path, tmp_path / "remote.log")
-        codes = procs.wait(["up", "remote"], timeout=180)
+        codes = procs.wait(["up", "remote"], timeout=300)
         assert codes == {"up": 0, "remote": 0}, procs.report()
         assert up.returncode == 0
     finally:
@@ -495,3 +497,38 @@ def test_a_base_install_runs_the_remote_controller_example(session_id: str, tmp_
     assert s["exit_ok"] is True
     assert s["steps"] == 1000
     assert s["final_position_error"] < 1e-3
+
+
+# -- cameras: the SDK hands a controller the session's cameras and their frames ---------------------------
+
+
+def test_session_info_gives_the_scenarios_cameras() -> None:
+    scenario = load_scenario("caroca_15kg_ibvs")
+    info = SessionInfo.from_payload(encode_session_info(scenario))
+    assert list(info.cameras) == ["top"]
+    got, want = info.cameras["top"], scenario.cameras[0]
+    for name in ("name", "intrinsics", "on_platform", "markers_on_platform", "marker_ids", "every", "pixel_sigma",
+                 "dropout", "latency", "image"):
+        assert getattr(got, name) == getattr(want, name), name
+    for name in ("mount_position", "mount_rotation", "markers"):
+        np.testing.assert_array_equal(getattr(got, name), getattr(want, name))
+    assert SessionInfo.from_payload(encode_session_info(load_scenario("caroca_15kg"))).cameras == {}
+    bad = msgpack.unpackb(encode_session_info(scenario))
+    del bad["sim"]["cameras"][0]["intrinsics"]
+    with pytest.raises(ProtocolError, match=r"session/info: sim\.cameras: 'intrinsics'"):
+        SessionInfo.from_payload(msgpack.packb(bad)).cameras  # noqa: B018
+
+
+@pytest.mark.slow
+def test_the_remote_ibvs_example_servoes_from_the_camera_alone(session_id: str, tmp_path: Path) -> None:
+    """examples/remote_ibvs.py against `cdpr up caroca_15kg_ibvs --without controller`: the platform ends at B
+    (whose image is the target) as under the in-stack IBVS controller; the SDK decodes frames only for it."""
+    s, log = _up_with("remote_ibvs.py", session_id, None, tmp_path, scenario="caroca_15kg_ibvs")
+    assert "answered 12000 states" in log
+    assert s["exit_ok"] is True
+    assert s["steps"] == 12000
+    assert s["final_position_error"] < 1e-3  # at B: ~0.14 mm, as the in-stack servo
+    assert s["clamped_commands"] == 0
+    robot = load_scenario("caroca_15kg_ibvs").robot
+    assert robot.tmin <= s["tension_min"] <= s["tension_max"] <= robot.tmax
+    assert s["rms_position_error"] > 0.1  # it never followed the quintic: the setpoints are not used

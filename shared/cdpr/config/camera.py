@@ -11,12 +11,10 @@ from __future__ import annotations
 import math
 from typing import Literal
 
-import numpy as np
 from pydantic import Field, FiniteFloat, PositiveFloat, field_validator, model_validator
 
 from cdpr.config.loading import Strict
-from cdpr.mechanics.camera import Camera, Intrinsics, look_at
-from cdpr.mechanics.rotation import rpy_to_matrix
+from cdpr.mechanics.camera import Camera, camera_from_spec, frame_every, look_at
 
 Vec3 = list[FiniteFloat]
 
@@ -55,12 +53,6 @@ class MountSpec(Strict):
             look_at(self.position, self.look_at, self.up)  # raises ValueError naming the problem
         return self
 
-    def rotation(self) -> np.ndarray:
-        if self.rpy is not None:
-            return rpy_to_matrix(*self.rpy)
-        assert self.look_at is not None
-        return look_at(self.position, self.look_at, self.up)
-
 
 class MarkersSpec(Strict):
     frame: Literal["platform", "world"] = Field("platform", description="platform: points in its body frame "
@@ -98,27 +90,10 @@ class CameraSpec(Strict):
 
     def every(self, dt: float) -> int:
         """Steps between two frames at ``dt``."""
-        return max(1, round(1.0 / (self.rate * dt)))
+        return frame_every(self.rate, dt)
 
     def build(self, dt: float) -> Camera:
-        i = self.intrinsics
-        k1, k2, t1, t2, k3 = self.distortion
-        n = len(self.markers.points)
-        return Camera(
-            name=self.name,
-            intrinsics=Intrinsics(i.fx, i.fy, i.cx, i.cy, i.width, i.height, (k1, k2, t1, t2, k3)),
-            on_platform=self.mount.body == "platform",
-            mount_position=np.array(self.mount.position, dtype=float),
-            mount_rotation=self.mount.rotation(),
-            markers=np.array(self.markers.points, dtype=float).reshape(n, 3),
-            markers_on_platform=self.markers.frame == "platform",
-            marker_ids=tuple(self.markers.ids or (f"m{j}" for j in range(n))),
-            every=self.every(dt),
-            pixel_sigma=float(self.pixel_sigma),
-            dropout=float(self.dropout),
-            latency=int(self.latency_steps),
-            image=bool(self.image),
-        )
+        return camera_from_spec(self.model_dump(), dt)
 
 
 def check_rate(camera: CameraSpec, dt: float) -> None:

@@ -15,12 +15,14 @@ the platform's body frame, so it moves with it); :func:`camera_pose` gives its p
 
 from __future__ import annotations
 
+from collections.abc import Mapping
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 from numpy.typing import ArrayLike
 
-from cdpr.mechanics.rotation import Array
+from cdpr.mechanics.rotation import Array, rpy_to_matrix
 
 
 @dataclass(frozen=True)
@@ -139,3 +141,37 @@ class Camera:
         """What it sees, without noise or dropout, with the platform at ``position``/``rotation``."""
         cam_p, cam_R = self.pose(position, rotation)
         return project(self.markers_world(position, rotation), cam_p, cam_R, self.intrinsics)
+
+
+def frame_every(rate: float, dt: float) -> int:
+    """Steps between two frames of a camera taking ``rate`` frames per second at the sim's ``dt``."""
+    return max(1, round(1.0 / (rate * dt)))
+
+
+def camera_from_spec(spec: Mapping[str, Any], dt: float) -> Camera:
+    """The :class:`Camera` of a camera as a scenario writes it (``sim.cameras``: name, mount, intrinsics,
+    distortion, rate, pixel_sigma, dropout, latency_steps, markers, image), already validated — the scenario's
+    loader (:mod:`cdpr.config.camera`) and a remote controller reading ``session/info`` both build it here."""
+    mount, i, markers = spec["mount"], spec["intrinsics"], spec["markers"]
+    if mount.get("rpy") is not None:
+        mount_rotation = rpy_to_matrix(*mount["rpy"])
+    else:
+        mount_rotation = look_at(mount["position"], mount["look_at"], mount.get("up", (0.0, 0.0, 1.0)))
+    points = np.array(markers["points"], dtype=float).reshape(-1, 3)
+    k1, k2, t1, t2, k3 = (float(x) for x in spec.get("distortion", (0.0,) * 5))
+    return Camera(
+        name=str(spec["name"]),
+        intrinsics=Intrinsics(float(i["fx"]), float(i["fy"]), float(i["cx"]), float(i["cy"]), int(i["width"]),
+                              int(i["height"]), (k1, k2, t1, t2, k3)),
+        on_platform=mount["body"] == "platform",
+        mount_position=np.array(mount["position"], dtype=float),
+        mount_rotation=mount_rotation,
+        markers=points,
+        markers_on_platform=markers.get("frame", "platform") == "platform",
+        marker_ids=tuple(markers.get("ids") or (f"m{j}" for j in range(len(points)))),
+        every=frame_every(float(spec["rate"]), dt),
+        pixel_sigma=float(spec.get("pixel_sigma", 0.0)),
+        dropout=float(spec.get("dropout", 0.0)),
+        latency=int(spec.get("latency_steps", 0)),
+        image=bool(spec.get("image", False)),
+    )

@@ -15,6 +15,7 @@ import msgpack
 import numpy as np
 
 from cdpr.errors import InputError
+from cdpr.mechanics.camera import Camera, camera_from_spec
 from cdpr.mechanics.control import Gains, Variant, controlled_rows
 from cdpr.mechanics.kinematics import check_robot
 from cdpr.mechanics.robot import Robot, Shape
@@ -128,6 +129,15 @@ class SessionInfo:
     def rows(self) -> list[int]:
         """Rows of the 6×m wrench matrix the scenario controls (``[0, 1, 2]`` for 3dof)."""
         return list(controlled_rows(self.robot, self.variant))
+
+    @property
+    def cameras(self) -> dict[str, Camera]:
+        """The scenario's cameras (``sim.cameras``) by name: intrinsics, mount, markers, frame period, latency —
+        what a controller needs to read their frames (``sim/camera/<name>``). Empty without cameras."""
+        try:
+            return {c["name"]: camera_from_spec(c, self.dt) for c in self.raw.get("sim", {}).get("cameras", [])}
+        except (KeyError, TypeError, ValueError, AttributeError) as exc:
+            raise ProtocolError(f"session/info: sim.cameras: {exc}") from None
 
     @classmethod
     def from_payload(cls, payload: bytes) -> SessionInfo:

@@ -43,7 +43,7 @@ import numpy as np
 import zenoh
 
 from cdpr.errors import InputError
-from cdpr.protocol import Command, Keys, Setpoint, State, Status
+from cdpr.protocol import CameraFrame, Command, Keys, Setpoint, State, Status
 from cdpr.protocol.pairing import Pairing
 from cdpr.protocol.session import SessionInfo
 from cdpr.runtime.service import Node, pair, serve
@@ -114,6 +114,13 @@ class RemoteController:
     def step(self, state: State, setpoint: Setpoint) -> Any:
         """Tensions for step ``state.step``: m numbers, or an object with ``.tensions`` (a TdaResult)."""
         raise NotImplementedError
+
+    def on_camera(self, frame: CameraFrame) -> None:
+        """Each frame of the session's cameras (``sim/camera/<name>``: the markers' pixels and depths), as it
+        arrives, on the thread that calls :meth:`step` (no lock needed). The cameras themselves (intrinsics,
+        mount, markers) are ``info.cameras``. A frame goes out ``latency`` steps after its exposure
+        (``frame.step``): the state of that later step may come just before or just after it. Override it to
+        servo from a camera (examples/remote_ibvs.py); by default frames are not even decoded."""
 
     def run(
         self,
@@ -221,6 +228,7 @@ class _ControllerNode(Node):
         self.last_heard = time.monotonic()
         self.warn = RateLimitedLog(self.name)
         self._pub: zenoh.Publisher | None = None
+        self.wants_frames = type(ctrl).on_camera is not RemoteController.on_camera
 
     def declare(self, session: zenoh.Session, inbox: Inbox) -> list[Any]:
         info = None
@@ -251,7 +259,10 @@ class _ControllerNode(Node):
 
     def handle(self, event: Event) -> None:
         self.last_heard = event.received
-        if (due := pair(self, self.pairing, event, self.m)) is not None:
+        if event.topic == "camera":
+            if self.wants_frames and (frame := self.decode(event)) is not None:
+                self.ctrl.on_camera(frame)
+        elif (due := pair(self, self.pairing, event, self.m)) is not None:
             self.answer(*due)
 
     def answer(self, state: State, setpoint: Setpoint) -> None:
