@@ -67,14 +67,20 @@ def test_a_node_off_the_table_is_refused() -> None:
         wiring.check_node("controller", ("state", "setpoints", "camera"), ("command", "state"))
     with pytest.raises(ValueError, match="subscribes"):
         wiring.check_node("sim", ("tick",), ("state", "sensors"))
+    # an optional topic may be left out (a controller that is no visual servo takes no camera frames), no other
+    wiring.check_node("controller", ("state", "setpoints"), ("command", "end"))
+    with pytest.raises(ValueError, match=r"subscribes \['camera', 'state'\], .* \(camera optional\)"):
+        wiring.check_node("controller", ("state", "camera"), ("command", "end"))
     with pytest.raises(ValueError, match="not in the wiring table"):
         wiring.check_node("estimator", (), ())
 
 
 def test_compose_runs_the_nodes_of_the_table() -> None:
-    """Every service of docker/compose.yaml is the router or a node of the table, started by its name."""
+    """Every service of docker/compose.yaml is the router, a node of the table started by its name, or (profile
+    study) a Ray node or a study's driver, which are no session's participants."""
     compose = yaml.safe_load((ROOT / "docker" / "compose.yaml").read_text(encoding="utf-8"))
-    nodes = {name: svc for name, svc in compose["services"].items() if name != "router"}
+    nodes = {name: svc for name, svc in compose["services"].items()
+             if name != "router" and svc.get("profiles") != ["study"]}
     assert set(nodes) <= set(WIRING)
     assert {"clock", "sim", "trajectory", "controller"} <= set(nodes)
     for name, svc in nodes.items():

@@ -50,7 +50,7 @@ from cdpr.protocol import (
     Tick,
 )
 from cdpr.runtime.service import Node, sleep_precisely
-from cdpr.runtime.transport import Event, Inbox, log
+from cdpr.runtime.transport import PUBLISH_OPTS, Event, Inbox, log
 from cdpr_sim.cameras import CameraSuite
 from cdpr_sim.hold import Applied, CommandHold, LatencyModel, StaticPolicy
 from cdpr_sim.models import make_sim
@@ -128,7 +128,9 @@ class SimNode(Node):
         self._pub, self._telemetry_pub = self.publishers["state"], self.publishers["telemetry"]
         self._sensors_pub = self.publishers["sensors"]
         for cam in self.scenario.cameras:  # one key per camera: sim/camera/<name>
-            self._camera_pubs[cam.name] = session.declare_publisher(self.keys.topic("camera", cam.name))
+            # a frame is an IBVS controller's input of a step: reliable, never dropped, express (as the state)
+            self._camera_pubs[cam.name] = session.declare_publisher(self.keys.topic("camera", cam.name),
+                                                                    **PUBLISH_OPTS)
             if cam.image:
                 self._image_pubs[cam.name] = session.declare_publisher(self.keys.topic("camera_image", cam.name))
         return [*self._camera_pubs.values(), *self._image_pubs.values()]

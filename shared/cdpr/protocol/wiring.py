@@ -51,6 +51,7 @@ TOPICS: dict[str, Topic] = {
 class NodeWiring:
     subscribes: tuple[str, ...]
     publishes: tuple[str, ...]
+    optional: tuple[str, ...] = ()  # of subscribes: left out by a node that does not use them (nothing sent to it)
 
 
 # What the serve loop wires for every node, whatever the table says below.
@@ -63,7 +64,8 @@ WIRING: dict[str, NodeWiring] = {
     "trajectory": NodeWiring(subscribes=("tick",), publishes=("setpoints",)),
     # camera: the frames of an image-based visual servo (controller.law: ibvs)
     # end: a controller may end the session early (a learning environment's episode: cdpr.gym)
-    "controller": NodeWiring(subscribes=("state", "setpoints", "camera"), publishes=("command", "end")),
+    "controller": NodeWiring(subscribes=("state", "setpoints", "camera"), publishes=("command", "end"),
+                             optional=("camera",)),
     "recorder": NodeWiring(subscribes=("telemetry", "setpoints", "camera", "camera_image"), publishes=()),
     # the session on ROS 2's wire (rmw_zenoh); "command" only while a ROS 2 controller is there (docs/ros2.md)
     "ros2": NodeWiring(subscribes=("tick", "state", "setpoints", "sensors"), publishes=("command",)),
@@ -85,10 +87,13 @@ def subscribers(topic: str) -> tuple[str, ...]:
 
 
 def check_node(node: str, subscribes: tuple[str, ...], publishes: tuple[str, ...]) -> None:
-    """Raise ValueError if a node declares a topic its row of :data:`WIRING` does not list (or misses one)."""
+    """Raise ValueError if a node declares a topic its row of :data:`WIRING` does not list (or misses one that is
+    not optional)."""
     if node not in WIRING:
         raise ValueError(f"node {node!r} is not in the wiring table (cdpr.protocol.wiring.WIRING)")
     row = WIRING[node]
-    for what, declared, listed in (("subscribes", subscribes, row.subscribes), ("publishes", publishes, row.publishes)):
-        if set(declared) != set(listed):
-            raise ValueError(f"node {node!r} {what} {sorted(declared)}, the wiring table lists {sorted(listed)}")
+    for what, declared, listed, optional in (("subscribes", subscribes, row.subscribes, row.optional),
+                                             ("publishes", publishes, row.publishes, ())):
+        if not set(declared) <= set(listed) or not set(listed) - set(declared) <= set(optional):
+            raise ValueError(f"node {node!r} {what} {sorted(declared)}, the wiring table lists {sorted(listed)}"
+                             + (f" ({', '.join(optional)} optional)" if optional else ""))
