@@ -404,7 +404,7 @@ def test_cdpr_ping_without_a_session_says_so_and_exits_1(session_id: str) -> Non
     router = subprocess.Popen([*CDPR, "router", "--listen", f"tcp/127.0.0.1:{port}"], stderr=subprocess.DEVNULL)
     try:
         run = subprocess.run([*CDPR, "ping", "--session", session_id, "--connect", f"tcp/127.0.0.1:{port}",
-                              "--count", "2"], capture_output=True, text=True, timeout=120, check=False)
+                              "--count", "2", "--wait", "1"], capture_output=True, text=True, timeout=120, check=False)
     finally:
         router.send_signal(signal.SIGINT)
         router.wait(timeout=30)

@@ -10,6 +10,7 @@ keeps the wall clock whatever the link, and the command then acts about ``round 
 from __future__ import annotations
 
 import math
+import threading
 import time
 from dataclasses import dataclass
 from typing import Any
@@ -63,11 +64,22 @@ class PingResult:
 
 
 def ping(session: zenoh.Session, keys: Keys, node: str = "sim", count: int = 200, interval: float = 0.005,
-         timeout: float = 2.0, info_timeout: float = 3.0) -> PingResult:
-    """``count`` gets of ``ping/{node}``, one at a time, ``interval`` s apart; the session's dt from its clock."""
+         timeout: float = 2.0, info_timeout: float = 3.0, wait: float = 10.0) -> PingResult:
+    """``count`` gets of ``ping/{node}``, one at a time, ``interval`` s apart; the session's dt from its clock.
+    First it waits (at most ``wait`` s) for the node's liveliness token, which the node declares after its
+    ping queryable: pinged right after ``cdpr up``, a starting node is waited for, not counted as silent."""
     key = keys.topic("ping", node)
     payload = bytes(PAYLOAD)
     trips: list[float] = []
+    there = threading.Event()
+
+    def on_token(sample: zenoh.Sample) -> None:
+        if sample.kind == zenoh.SampleKind.PUT:
+            there.set()
+
+    watch = session.liveliness().declare_subscriber(keys.alive(node), on_token, history=True)
+    there.wait(wait)
+    watch.undeclare()
     for _ in range(3):  # warm the route (the first query also resolves it)
         for _reply in session.get(key, payload=payload, timeout=timeout):
             pass

@@ -214,7 +214,10 @@ def _episode_path(path: str, episode: int) -> str:
 @click.option("--node", default="sim", show_default=True,
               type=click.Choice(["sim", "clock", "trajectory", "controller", "recorder"]))
 @click.option("--count", type=click.IntRange(1, 100_000), default=200, show_default=True)
-def ping(session_id: str, connect: tuple[str, ...], zenoh_config: str | None, node: str, count: int) -> None:
+@click.option("--wait", type=click.FloatRange(0.0), default=10.0, show_default=True,
+              help="seconds to wait for NODE to be there (its liveliness token) before the first ping")
+def ping(session_id: str, connect: tuple[str, ...], zenoh_config: str | None, node: str, count: int,
+         wait: float) -> None:
     """Measure the round trip from here to a running session's NODE (where a controller would run), and
     say whether it fits the session's dt. Prints one line, then a JSON summary."""
     from cdpr.protocol import Keys
@@ -224,7 +227,7 @@ def ping(session_id: str, connect: tuple[str, ...], zenoh_config: str | None, no
 
     conf = make_config("client", connect=connect or ("tcp/127.0.0.1:7447",), config_file=zenoh_config)
     with open_session(conf, "ping") as session:
-        result = measure(session, Keys(session_id), node, count)
+        result = measure(session, Keys(session_id), node, count, wait=wait)
     log("ping", result.verdict())
     emit(result.summary())
     if not result.answered:
