@@ -18,6 +18,7 @@ from __future__ import annotations
 import argparse
 import importlib
 import json
+import os
 import sys
 from collections.abc import Callable, Sequence
 from pathlib import Path
@@ -150,4 +151,10 @@ def main(argv: Sequence[str] | None = None) -> int:
 
 
 if __name__ == "__main__":
-    sys.exit(main())
+    code = main()
+    sys.stdout.flush()
+    sys.stderr.flush()
+    # Zenoh's runtime threads outlive the closed session; an interpreter teardown beside them can abort the
+    # process ("FATAL: exception not rethrown": a thread taking the GIL during finalization). Everything is
+    # closed and flushed by now: leave without the teardown, as cdpr run's services do (cdpr.tools.launch).
+    os._exit(code)
