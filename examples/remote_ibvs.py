@@ -30,9 +30,10 @@ class RemoteIbvs(RemoteController):
 
     def setup(self, info):
         super().setup(info)
-        if self.camera not in info.cameras:
-            sys.exit(f"remote_ibvs: the session has no camera {self.camera!r} (it has: {sorted(info.cameras)})")
-        cam = info.cameras[self.camera]
+        cameras = info.cameras  # rebuilt from session/info at each access
+        if self.camera not in cameras:
+            sys.exit(f"remote_ibvs: the session has no camera {self.camera!r} (it has: {sorted(cameras)})")
+        cam = cameras[self.camera]
         self.servo = IbvsCore(info.robot, cam, desired_image(cam, self.goal, self.goal_R), self.gain, self.kv,
                               0.5, 0.5, make_tda(info.tda), info.dt, self.goal.copy(), self.goal_R.copy())
 

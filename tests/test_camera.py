@@ -4,8 +4,12 @@ scenario file's checks."""
 
 from __future__ import annotations
 
+import contextlib
 import math
+import subprocess
+from collections.abc import Iterator
 from pathlib import Path
+from typing import Any
 
 import cv2
 import numpy as np
@@ -18,6 +22,7 @@ from cdpr.config.scenario import load_scenario
 from cdpr.errors import InputError
 from cdpr.mechanics.camera import Camera, Intrinsics, look_at, project
 from cdpr.mechanics.rotation import quat_matrix, rpy_to_matrix
+from conftest import CDPR, free_port, last_json_line
 
 SCENARIOS = Path(__file__).resolve().parent.parent / "shared" / "cdpr" / "scenarios"
 INTRINSICS = Intrinsics(610.0, 605.0, 322.5, 241.0, 640, 480, (-0.21, 0.08, 0.0012, -0.0007, -0.015))
@@ -262,44 +267,54 @@ def test_the_sims_fast_frames_are_the_reference_frames_bit_for_bit(seed: int) ->
     assert measure_fast(cam, 1, seed, step, 0.5, p, R) == measure(cam, 1, seed, step, 0.5, p, R)
 
 
-@pytest.mark.slow
-def test_a_session_publishes_each_frame_of_what_the_camera_saw(session_id: str, tmp_path: Path) -> None:
-    """The sim's frames on sim/camera/top: every 20th step, 3 steps late, and each the projection of that step's
-    state (no noise in this scenario)."""
-    import subprocess
-
-    import zenoh
-
-    from cdpr.protocol import CameraFrame, Keys, State
-    from conftest import CDPR, free_port, last_json_line
-
-    port = free_port()
-    endpoint = f"tcp/127.0.0.1:{port}"
-    up = subprocess.Popen([*CDPR, "up", str(CAMERA_SCENARIO), "--session", session_id, "--without", "controller",
-                           "--listen", endpoint, "--duration", "0.3", "--quiet"],
+def _up_with_cdpr_controller(plant: str | Path, controller: str | Path, session_id: str, duration: str,
+                             watch: Any = None) -> tuple[subprocess.CompletedProcess[str], str, str]:
+    """`cdpr up PLANT --without controller` with `cdpr controller CONTROLLER` joining it (a client of its router);
+    ``watch(endpoint)``, a context manager, is entered before the controller starts (the session waits for its
+    controller: nothing is published before that). The controller's run, the session's stdout and stderr."""
+    endpoint = f"tcp/127.0.0.1:{free_port()}"
+    up = subprocess.Popen([*CDPR, "up", str(plant), "--session", session_id, "--without", "controller",
+                           "--listen", endpoint, "--duration", duration, "--quiet"],
                           stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
-    frames: list[CameraFrame] = []
-    states: dict[int, State] = {}
-    conf = zenoh.Config()
-    conf.insert_json5("mode", '"client"')
-    conf.insert_json5("connect/endpoints", f'["{endpoint}"]')
-    conf.insert_json5("connect/timeout_ms", '{"client": 30000}')
     try:
-        with zenoh.open(conf) as z:
-            keys = Keys(session_id)
-            z.declare_subscriber(keys.topic("camera"),
-                                 lambda s: frames.append(CameraFrame.decode(s.payload.to_bytes())))
-            z.declare_subscriber(keys.state, lambda s: states.setdefault(*(lambda st: (st.step, st))(
-                State.decode(s.payload.to_bytes()))))
-            # the session waits for its controller: nothing is published before these subscribers exist
-            ctl = subprocess.run([*CDPR, "controller", str(CAMERA_SCENARIO), "--session", session_id, "--duration",
-                                  "0.3", "--zenoh-mode", "client", "--connect", endpoint],
+        with watch(endpoint) if watch is not None else contextlib.nullcontext():
+            ctl = subprocess.run([*CDPR, "controller", str(controller), "--session", session_id, "--duration",
+                                  duration, "--zenoh-mode", "client", "--connect", endpoint],
                                  capture_output=True, text=True, timeout=120)
             out, err = up.communicate(timeout=120)
     finally:
         if up.poll() is None:
             up.kill()
     assert ctl.returncode == 0, ctl.stderr[-2000:]
+    return ctl, out, err
+
+
+@pytest.mark.slow
+def test_a_session_publishes_each_frame_of_what_the_camera_saw(session_id: str, tmp_path: Path) -> None:
+    """The sim's frames on sim/camera/top: every 20th step, 3 steps late, and each the projection of that step's
+    state (no noise in this scenario)."""
+    import zenoh
+
+    from cdpr.protocol import CameraFrame, Keys, State
+
+    frames: list[CameraFrame] = []
+    states: dict[int, State] = {}
+
+    @contextlib.contextmanager
+    def watch(endpoint: str) -> Iterator[None]:
+        conf = zenoh.Config()
+        conf.insert_json5("mode", '"client"')
+        conf.insert_json5("connect/endpoints", f'["{endpoint}"]')
+        conf.insert_json5("connect/timeout_ms", '{"client": 30000}')
+        with zenoh.open(conf) as z:
+            keys = Keys(session_id)
+            z.declare_subscriber(keys.topic("camera"),
+                                 lambda s: frames.append(CameraFrame.decode(s.payload.to_bytes())))
+            z.declare_subscriber(keys.state, lambda s: states.setdefault(*(lambda st: (st.step, st))(
+                State.decode(s.payload.to_bytes()))))
+            yield
+
+    _, out, err = _up_with_cdpr_controller(CAMERA_SCENARIO, CAMERA_SCENARIO, session_id, "0.3", watch)
     assert last_json_line(out)["exit_ok"], err[-3000:]
     (cam,) = load_scenario(CAMERA_SCENARIO).cameras
     got = sorted({f.step: f for f in frames}.values(), key=lambda f: f.step)
@@ -562,27 +577,11 @@ def test_a_missing_frame_never_stalls_an_ibvs_session(session_id: str, tmp_path:
     """A controller that expects frames the sim does not take (50 Hz against the sim's 25 Hz): when the clock
     asks for a state again (a stall of --resend-after), the controller answers with the frames it has, says so
     and counts it; the session finishes."""
-    import subprocess
-
-    from conftest import CDPR, free_port, last_json_line
-
     spec = yaml.safe_load((SCENARIOS / "caroca_15kg_ibvs.yaml").read_text(encoding="utf-8"))
     spec["sim"]["cameras"][0]["rate"] = 25.0
     plant = tmp_path / "plant.yaml"
     plant.write_text(yaml.safe_dump(spec, sort_keys=False), encoding="utf-8")
-    endpoint = f"tcp/127.0.0.1:{free_port()}"
-    up = subprocess.Popen([*CDPR, "up", str(plant), "--session", session_id, "--without", "controller",
-                           "--listen", endpoint, "--duration", "0.1", "--quiet"],
-                          stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
-    try:
-        ctl = subprocess.run([*CDPR, "controller", "caroca_15kg_ibvs", "--session", session_id, "--duration", "0.1",
-                              "--zenoh-mode", "client", "--connect", endpoint],
-                             capture_output=True, text=True, timeout=120)
-        out, err = up.communicate(timeout=120)
-    finally:
-        if up.poll() is None:
-            up.kill()
-    assert ctl.returncode == 0, ctl.stderr[-2000:]
+    ctl, out, err = _up_with_cdpr_controller(plant, "caroca_15kg_ibvs", session_id, "0.1")
     summary = last_json_line(out)
     assert summary["exit_ok"], err[-2000:]
     assert summary["steps"] == 100

@@ -37,8 +37,8 @@ class ControllerNode(Node):
         super().__init__(keys)
         # image-based visual servoing (controller.law: ibvs): the camera's frames instead of the state's pose
         self.ibvs = ibvs_from_scenario(scenario) if scenario.spec.controller.law == "ibvs" else None
-        if self.ibvs is None:  # no camera frames sent here
-            self.subscribes = tuple(t for t in self.subscribes if t != "camera")
+        if self.ibvs is None:
+            self.leave_out("camera")
         self.waiting: State | None = None  # IBVS: a state whose frame has not come yet
         self.frames_given_up = -1  # IBVS: the exposure of the last frame given up for lost
         self.total_steps = scenario.total_steps

@@ -128,7 +128,7 @@ class _EnvNode(Node):
 
     def __init__(self, keys: Keys, m: int, sensors: bool, total_steps: int) -> None:
         super().__init__(keys)
-        self.subscribes = tuple(t for t in self.subscribes if t != "camera")  # no camera in its observation
+        self.leave_out("camera")  # no camera in its observation
         self.m = m
         self.with_sensors = sensors
         self.total_steps = total_steps

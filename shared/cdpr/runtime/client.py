@@ -229,8 +229,8 @@ class _ControllerNode(Node):
         self.warn = RateLimitedLog(self.name)
         self._pub: zenoh.Publisher | None = None
         self.wants_frames = type(ctrl).on_camera is not RemoteController.on_camera
-        if not self.wants_frames:  # no camera frames sent here
-            self.subscribes = tuple(t for t in self.subscribes if t != "camera")
+        if not self.wants_frames:
+            self.leave_out("camera")
 
     def declare(self, session: zenoh.Session, inbox: Inbox) -> list[Any]:
         info = None

@@ -112,6 +112,11 @@ class Node:
             self.warn(topic.bad, f"dropped a bad {topic.key.split('/{')[0]}: {exc}")
             return None
 
+    def leave_out(self, *topics: str) -> None:
+        """Do not subscribe to these optional topics of the node's row (nothing is then sent to it: a controller
+        that is no visual servo takes no camera frames); :func:`declare_topics` checks that they are optional."""
+        self.subscribes = tuple(t for t in self.subscribes if t not in topics)
+
     def count(self, what: str) -> None:
         self.counters[what] = self.counters.get(what, 0) + 1
 
