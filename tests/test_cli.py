@@ -9,12 +9,13 @@ import pytest
 
 from cdpr.config.robot import load_robot, shipped_robots
 from cdpr.mechanics.kinematics import inverse_kinematics
+from cdpr.mechanics.rotation import rotvec_to_matrix
 from conftest import cdpr
 
 
-def _json(*args: str) -> object:
+def _json(*args: str, code: int = 0) -> object:
     proc = cdpr(*args, timeout=60)
-    assert proc.returncode == 0, proc.stderr
+    assert proc.returncode == code, proc.stderr
     return json.loads(proc.stdout)
 
 
@@ -60,16 +61,48 @@ def test_tda_payload_and_wrench_and_limits() -> None:
               "--tmin", "1", "--tmax", "6500")
     assert np.allclose(a["tensions"], b["tensions"], atol=1e-6)
     assert min(a["tensions"]) >= 1 - 1e-9
-    infeasible = _json("tda", "caroca", "--pose", "0", "0", "1.5", "--static", "--tmax", "60")
+    infeasible = _json("tda", "caroca", "--pose", "0", "0", "1.5", "--static", "--tmax", "60", code=3)
     assert infeasible["feasible"] is False
     assert max(infeasible["tensions"]) <= 60 + 1e-9
     assert infeasible["residual"] > 1.0
+
+
+def rotation(axis: int, angle: float) -> np.ndarray:
+    """The elementary rotation about x (0), y (1) or z (2), from the rotation vector (independent of the CLI's code)."""
+    return rotvec_to_matrix(np.eye(3)[axis] * angle)
+
+
+def test_pose_angles_take_either_convention_and_say_which() -> None:
+    """--angles xyz is CASPR's Euler XYZ, R = Rx(a)·Ry(b)·Rz(c); the default rpy is R = Rz(yaw)·Ry(pitch)·Rx(roll)."""
+    robot = load_robot("caroca")
+    a, b, c = 0.1, -0.2, 0.3
+    cases = {"xyz": rotation(0, a) @ rotation(1, b) @ rotation(2, c), "rpy": rotation(2, c) @ rotation(1, b) @ rotation(0, a)}
+    for angles, R in cases.items():
+        out = _json("ik", "caroca", "--pose", "0.1", "0", "1.5", str(a), str(b), str(c), "--angles", angles)
+        assert np.allclose(out["lengths"], inverse_kinematics(robot, [0.1, 0.0, 1.5], R).lengths, rtol=0, atol=1e-12)
+    default = _json("ik", "caroca", "--pose", "0.1", "0", "1.5", str(a), str(b), str(c))
+    assert default == _json("ik", "caroca", "--pose", "0.1", "0", "1.5", str(a), str(b), str(c), "--angles", "rpy")
+    tilted = _json("workspace", "caroca", "--step", "1", "--orientation", str(a), str(b), str(c), "--angles", "xyz")
+    assert tilted["angles"] == "xyz"
+
+
+@pytest.mark.parametrize(("command", "flags"), [("ik", ("--pose", "--angles")),
+                                                 ("tda", ("--pose", "--wrench", "--angles")),
+                                                 ("workspace", ("--orientation", "--angles"))])
+def test_help_lists_the_pose_and_wrench_and_the_angle_convention(command: str, flags: tuple[str, ...]) -> None:
+    proc = cdpr(command, "--help", timeout=60)
+    assert proc.returncode == 0, proc.stderr
+    options = proc.stdout.split("Options:")[1]
+    for flag in flags:
+        assert f"  {flag} " in options, (flag, proc.stdout)
+    assert "Rz(yaw)·Ry(pitch)·Rx(roll)" in options and "Rx(a)·Ry(b)·Rz(c)" in options
 
 
 @pytest.mark.parametrize(
     ("args", "needle"),
     [
         (("tda", "caroca", "--pose", "0", "0", "--static"), "--pose"),
+        (("ik", "caroca", "--pose", "0", "0", "1", "0", "0", "0", "--angles", "zyx"), "--angles"),
         (("tda", "caroca", "--pose", "0", "0", "1.5"), "--static"),
         (("tda", "caroca", "--pose", "0", "0", "1.5", "--static", "--method", "magic"), "--method"),
         (("tda", "caroca", "--pose", "0", "0", "1.5", "--static", "--tmin", "10", "--tmax", "5"), "--tmin"),

@@ -214,6 +214,8 @@ INVALID_CASES: dict[str, tuple[str, str]] = {
     "point_mass_offset": ("cables", "every platform point at [0, 0, 0]"),
     "planar_out_of_plane": ("cables", "every y must be 0"),
     "frame_box_inverted": ("frame_box", "min must be below max"),
+    "home_not_held": ("home", "no tensions in [0.5, 100] N (limits.tmin, limits.tmax) hold the 2 kg platform at rest "
+                      "at the home pose (position [0, 0, 1] m, rpy [0, 0, 0] rad)"),
 }
 
 # Files that are not robot descriptions at all: the message names the file, then says what is wrong.

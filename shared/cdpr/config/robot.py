@@ -19,9 +19,11 @@ from pydantic import (
 )
 
 from cdpr.config.loading import Strict, parse_model, read_yaml, resolve, shipped_names
+from cdpr.errors import InputError
 from cdpr.mechanics.kinematics import check_robot
 from cdpr.mechanics.robot import Mode, Robot, Shape, frozen_array
 from cdpr.mechanics.rotation import rpy_to_matrix
+from cdpr.mechanics.workspace import wrench_feasible
 
 Vec3 = Annotated[list[FiniteFloat], Field(min_length=3, max_length=3)]
 
@@ -150,7 +152,22 @@ def robot_from_spec(spec: RobotSpec, where: str) -> Robot:
         frame_max=frozen_array(spec.frame_box.max),
     )
     check_robot(robot, where)
+    check_home_held(robot, where, spec.home.rpy)
     return robot
+
+
+def check_home_held(robot: Robot, where: str, rpy: list[float]) -> None:
+    """An :class:`InputError` unless tensions within the robot's limits hold its platform at rest at its home pose
+    (the pose every session starts from)."""
+    if wrench_feasible(robot, robot.home_position[None, :], robot.home_rotation)[0]:
+        return
+    pos = ", ".join(f"{x:g}" for x in robot.home_position)
+    angles = ", ".join(f"{x:g}" for x in rpy)
+    raise InputError(
+        f"{where}: home: no tensions in [{robot.tmin:g}, {robot.tmax:g}] N (limits.tmin, limits.tmax) hold the "
+        f"{robot.mass:g} kg platform at rest at the home pose (position [{pos}] m, rpy [{angles}] rad): "
+        "move home into the workspace (cdpr workspace) or widen the limits"
+    )
 
 
 def load_robot(name_or_path: str | Path) -> Robot:

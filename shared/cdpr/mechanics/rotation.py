@@ -1,6 +1,8 @@
 """Rotations: quaternions ``[qx, qy, qz, qw]`` (scalar last, as on the wire), matrices, rotation vectors.
 
-Pure numpy, no I/O. Roll-pitch-yaw is the ROS/URDF convention: R = Rz(yaw) · Ry(pitch) · Rx(roll).
+Pure numpy, no I/O. Roll-pitch-yaw is the ROS/URDF convention: R = Rz(yaw) · Ry(pitch) · Rx(roll), the
+project's default for three angles; CASPR and many papers use Euler XYZ, R = Rx(a) · Ry(b) · Rz(c)
+(:func:`angles_to_matrix` takes either by name).
 """
 
 from __future__ import annotations
@@ -59,6 +61,36 @@ def rpy_to_matrix(roll: float, pitch: float, yaw: float) -> Array:
             [-sp, cp * sr, cp * cr],
         ]
     )
+
+
+def euler_xyz_to_matrix(a: float, b: float, c: float) -> Array:
+    """Euler XYZ (intrinsic x, then y, then z; CASPR's convention): R = Rx(a) · Ry(b) · Rz(c)."""
+    ca, sa = np.cos(a), np.sin(a)
+    cb, sb = np.cos(b), np.sin(b)
+    cc, sc = np.cos(c), np.sin(c)
+    return np.array(
+        [
+            [cb * cc, -cb * sc, sb],
+            [ca * sc + sa * sb * cc, ca * cc - sa * sb * sc, -sa * cb],
+            [sa * sc - ca * sb * cc, sa * cc + ca * sb * sc, ca * cb],
+        ]
+    )
+
+
+ANGLE_CONVENTIONS = {
+    "rpy": "roll pitch yaw: R = Rz(yaw)·Ry(pitch)·Rx(roll) (ROS/URDF)",
+    "xyz": "Euler XYZ: R = Rx(a)·Ry(b)·Rz(c) (CASPR)",
+}
+
+
+def angles_to_matrix(convention: str, angles: ArrayLike) -> Array:
+    """Three angles (rad) in a named convention (:data:`ANGLE_CONVENTIONS`) → rotation matrix."""
+    a, b, c = (float(x) for x in np.asarray(angles, dtype=float).reshape(3))
+    if convention == "rpy":
+        return rpy_to_matrix(a, b, c)
+    if convention == "xyz":
+        return euler_xyz_to_matrix(a, b, c)
+    raise ValueError(f"unknown angle convention {convention!r} (known: {', '.join(ANGLE_CONVENTIONS)})")
 
 
 def matrix_to_quat(R: ArrayLike) -> Array:

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import sys
 from typing import Any
 
 import click
@@ -12,6 +13,8 @@ from cdpr.tools.cli.group import cli, emit
 
 # ------------------------------------------------------------------------------------------------
 # Robot tools
+
+INFEASIBLE_EXIT = 3  # cdpr tda: no admissible tensions produce the wrench (documented in README)
 
 
 @cli.command()
@@ -30,30 +33,67 @@ def robots(robot: str | None) -> None:
         emit(load_robot(robot).summary())
 
 
-def _pose(values: tuple[float, ...]) -> tuple[np.ndarray, np.ndarray]:
-    from cdpr.mechanics.rotation import rpy_to_matrix
+_ANGLES_HELP = ("the convention of three angles, rad: rpy = roll pitch yaw, R = Rz(yaw)·Ry(pitch)·Rx(roll) (ROS/URDF); "
+                "xyz = Euler XYZ, R = Rx(a)·Ry(b)·Rz(c) (CASPR)")
+_POSE = ("--pose", "X Y Z [A B C]", "the platform's pose: position, m, and three angles, rad, in --angles' convention "
+         "(default roll pitch yaw; none: no rotation)  [required]")
+_WRENCH = ("--wrench", "FX FY FZ MX MY MZ", "the wrench the cables must exert on the platform: N and N·m, world "
+           "frame, moment about the centre of mass")
+
+
+def _numbers_command(*flags: tuple[str, str, str]) -> type[click.Command]:
+    """A command class whose --help also lists ``flags`` (FLAG, METAVAR, HELP): options that take several numbers,
+    which click cannot declare, collected from the command's extra arguments by :func:`_split_numbers`."""
+
+    class NumbersCommand(click.Command):
+        def format_options(self, ctx: click.Context, formatter: click.HelpFormatter) -> None:
+            rows = [(f"{flag} {metavar}", text) for flag, metavar, text in flags]
+            rows += [r for p in self.get_params(ctx)
+                     if isinstance(p, click.Option) and (r := p.get_help_record(ctx)) is not None]
+            with formatter.section("Options"):
+                formatter.write_dl(rows)
+
+    return NumbersCommand
+
+
+def _angle_convention(_ctx: click.Context, _param: click.Parameter, value: str) -> str:
+    from cdpr.mechanics.rotation import ANGLE_CONVENTIONS
+
+    if value not in ANGLE_CONVENTIONS:
+        raise InputError(f"--angles: unknown convention {value!r} (known: {', '.join(ANGLE_CONVENTIONS)})")
+    return value
+
+
+def _angles_option() -> Any:
+    return click.option("--angles", metavar="rpy|xyz", default="rpy", show_default=True, callback=_angle_convention,
+                        help=_ANGLES_HELP)
+
+
+def _pose(values: tuple[float, ...], angles: str = "rpy") -> tuple[np.ndarray, np.ndarray]:
+    from cdpr.mechanics.rotation import angles_to_matrix
 
     if len(values) not in (3, 6):
-        raise InputError(f"--pose: expected X Y Z [ROLL PITCH YAW], got {len(values)} number(s)")
+        raise InputError(f"--pose: expected X Y Z [A B C] (three angles in --angles {angles}), "
+                         f"got {len(values)} number(s)")
     if not np.all(np.isfinite(values)):
         raise InputError("--pose: every number must be finite")
-    rpy = values[3:] if len(values) == 6 else (0.0, 0.0, 0.0)
-    return np.array(values[:3]), rpy_to_matrix(*rpy)
+    return np.array(values[:3]), angles_to_matrix(angles, values[3:] if len(values) == 6 else (0.0, 0.0, 0.0))
 
 
-@cli.command(context_settings={"ignore_unknown_options": True, "allow_extra_args": True})
+@cli.command(cls=_numbers_command(_POSE), context_settings={"ignore_unknown_options": True, "allow_extra_args": True})
 @click.argument("robot")
+@_angles_option()
 @click.pass_context
-def ik(ctx: click.Context, robot: str) -> None:
-    """Inverse kinematics of ROBOT at --pose X Y Z [ROLL PITCH YAW]."""
+def ik(ctx: click.Context, robot: str, angles: str) -> None:
+    """Inverse kinematics of ROBOT at --pose X Y Z [A B C]: cable lengths, directions, wrench matrix (JSON)."""
     from cdpr.config.robot import load_robot
     from cdpr.mechanics.kinematics import inverse_kinematics
 
     groups = _split_numbers(list(ctx.args), ("--pose",))
     if "--pose" not in groups:
-        raise InputError("--pose X Y Z [ROLL PITCH YAW] is required")
+        raise InputError("--pose X Y Z [A B C] is required")
     r = load_robot(robot)
-    position, R = _pose(_numbers("--pose", tuple(groups["--pose"])))
+    position, R = _pose(_numbers("--pose", tuple(groups["--pose"])), angles)
     k = inverse_kinematics(r, position, R)
     emit({"lengths": k.lengths.tolist(), "directions": k.directions.tolist(),
            "wrench_matrix": k.wrench_matrix.tolist()})
@@ -84,17 +124,24 @@ def _split_numbers(args: list[str], flags: tuple[str, ...]) -> dict[str, list[st
     return groups
 
 
-@cli.command(context_settings={"ignore_unknown_options": True, "allow_extra_args": True})
+@cli.command(cls=_numbers_command(_POSE, _WRENCH),
+             context_settings={"ignore_unknown_options": True, "allow_extra_args": True})
 @click.argument("robot")
+@_angles_option()
 @click.option("--static", "static", is_flag=True, help="tensions that hold the platform (plus payload) at rest")
 @click.option("--payload", type=float, default=0.0, show_default=True, help="kg rigidly attached at the centre of mass")
 @click.option("--method", default="qp", show_default=True, help="qp | closed-form | improved-closed-form | continuity")
 @click.option("--tmin", type=float, default=None, help="N (default: the robot's)")
 @click.option("--tmax", type=float, default=None, help="N (default: the robot's)")
 @click.pass_context
-def tda(ctx: click.Context, robot: str, static: bool, payload: float, method: str, tmin: float | None,
-        tmax: float | None) -> None:
-    """Tension distribution of ROBOT at --pose X Y Z [R P Y], for --static or --wrench FX FY FZ MX MY MZ."""
+def tda(ctx: click.Context, robot: str, angles: str, static: bool, payload: float, method: str,
+        tmin: float | None, tmax: float | None) -> None:
+    """Tension distribution of ROBOT at --pose X Y Z [A B C], for --static or --wrench FX FY FZ MX MY MZ.
+
+    Prints the tensions as JSON. Exit code 0 when they produce the wrench within the limits, 3 when no
+    admissible tensions do (the JSON is still printed: feasible false, the nearest admissible tensions and
+    their residual), 2 for bad input.
+    """
     from cdpr.config.robot import load_robot
     from cdpr.mechanics.dynamics import gravity_wrench
     from cdpr.mechanics.kinematics import inverse_kinematics
@@ -102,7 +149,7 @@ def tda(ctx: click.Context, robot: str, static: bool, payload: float, method: st
 
     groups = _split_numbers(list(ctx.args), ("--pose", "--wrench"))
     if "--pose" not in groups:
-        raise InputError("--pose X Y Z [ROLL PITCH YAW] is required")
+        raise InputError("--pose X Y Z [A B C] is required")
     if static == ("--wrench" in groups):
         raise InputError("give exactly one of --static or --wrench FX FY FZ MX MY MZ")
     if method not in METHODS:
@@ -112,7 +159,7 @@ def tda(ctx: click.Context, robot: str, static: bool, payload: float, method: st
     hi = r.tmax if tmax is None else tmax
     if not (np.isfinite(lo) and np.isfinite(hi)) or lo < 0 or lo > hi:
         raise InputError(f"--tmin/--tmax: need 0 <= tmin <= tmax, got {lo} and {hi}")
-    position, R = _pose(_numbers("--pose", tuple(groups["--pose"])))
+    position, R = _pose(_numbers("--pose", tuple(groups["--pose"])), angles)
     rows = list(r.controlled_rows)
     W = inverse_kinematics(r, position, R).wrench_matrix[rows]
     if static:
@@ -133,6 +180,8 @@ def tda(ctx: click.Context, robot: str, static: bool, payload: float, method: st
             "status": result.status,
         }
     )
+    if not result.feasible:
+        sys.exit(INFEASIBLE_EXIT)
 
 
 # ------------------------------------------------------------------------------------------------
@@ -147,19 +196,20 @@ def tda(ctx: click.Context, robot: str, static: bool, payload: float, method: st
               help="whole platform mass, kg (solid-shape inertia), as a scenario's platform.mass")
 @click.option("--step", type=float, default=0.1, show_default=True, help="grid spacing, m (at most)")
 @click.option("--orientation", type=float, nargs=3, default=(0.0, 0.0, 0.0), show_default=True,
-              help="fixed platform orientation: roll pitch yaw, rad")
+              help="fixed platform orientation: three angles, rad, in --angles' convention")
+@_angles_option()
 @click.option("--tmin", type=float, default=None, help="N (default: the robot's)")
 @click.option("--tmax", type=float, default=None, help="N (default: the robot's)")
 @click.option("--rrd", type=click.Path(), default=None, help="write the points to this .rrd file")
 @click.option("--spawn", is_flag=True, help="show the points in a new Rerun viewer")
 def workspace(robot: str, payload: float, mass: float | None, step: float,
-              orientation: tuple[float, float, float], tmin: float | None, tmax: float | None,
+              orientation: tuple[float, float, float], angles: str, tmin: float | None, tmax: float | None,
               rrd: str | None, spawn: bool) -> None:
     """Static wrench-feasible workspace of ROBOT on a grid over its frame box (JSON; points to Rerun)."""
     import time
 
     from cdpr.config.robot import load_robot
-    from cdpr.mechanics.rotation import rpy_to_matrix
+    from cdpr.mechanics.rotation import angles_to_matrix
     from cdpr.mechanics.workspace import compute_workspace
     from cdpr.recording.workspace import record_workspace
 
@@ -172,14 +222,14 @@ def workspace(robot: str, payload: float, mass: float | None, step: float,
         raise InputError(f"--step: must be a positive length in m, got {step}")
     if not np.all(np.isfinite(orientation)):
         raise InputError("--orientation: roll, pitch and yaw must be finite")
-    R = rpy_to_matrix(*orientation)
+    R = angles_to_matrix(angles, orientation)
     start = time.perf_counter()
     ws = compute_workspace(r, step, R, 0.0, lo, hi)
     seconds = time.perf_counter() - start
     box = ws.bounding_box()
     out: dict[str, Any] = {
         "robot": r.name, "mass": r.mass, "payload": payload, "tmin": lo, "tmax": hi,
-        "orientation_rpy": list(orientation), "step": step, "spacing": ws.spacing.tolist(),
+        "orientation": list(orientation), "angles": angles, "step": step, "spacing": ws.spacing.tolist(),
         "grid": list(ws.shape),
         "points": int(ws.points.shape[0]), "feasible": int(ws.feasible.sum()), "fraction": ws.fraction,
         "bounding_box": None if box is None else {"min": box[0].tolist(), "max": box[1].tolist()},
