@@ -36,15 +36,15 @@ def rotation_vector(R):
 
 
 def tensions(W, w, tmin, tmax):
-    """Least-norm f with W f = w; a cable that would pull less than tmin is held at tmin, and again."""
-    f, free = np.full(W.shape[1], tmin), np.ones(W.shape[1], dtype=bool)
+    """Least-norm f with W f = w; a cable that would pull less than its tmin is held at it, and again."""
+    f, free = np.array(tmin, dtype=float), np.ones(W.shape[1], dtype=bool)
     while free.sum() >= W.shape[0]:
         f[free] = np.linalg.pinv(W[:, free]) @ (w - W[:, ~free] @ f[~free])
         low = np.flatnonzero(free & (f < tmin))
         if low.size == 0:
             break
-        worst = low[np.argmin(f[low])]
-        f[worst], free[worst] = tmin, False
+        worst = low[np.argmin((f - tmin)[low])]
+        f[worst], free[worst] = tmin[worst], False
     return np.clip(f, tmin, tmax)
 
 
@@ -55,7 +55,8 @@ class Controller:
         robot = info["robot"]
         self.a, self.b = np.array(robot["frame_points"]), np.array(robot["platform_points"])
         self.mass, self.inertia = robot["mass"], np.array(robot["inertia"])
-        self.tmin, self.tmax = robot["tension_limits"]
+        limits = robot["cable_limits"]  # each cable's own [tmin, tmax]
+        self.tmin, self.tmax = np.array(limits["tmin"]), np.array(limits["tmax"])
         three = info.get("controller", {}).get("variant") == "3dof"
         self.rows = [0, 1, 2] if three else ROWS[robot["mode"]]
 

@@ -169,7 +169,7 @@ def test_interface_time_reset_bad_inputs_determinism() -> None:
     assert np.all(s.tensions == 0.0)
     assert sims[0].encoder_lengths() == pytest.approx(l0, abs=1e-15)
     # clamping: a length beyond the robot's max_length is clamped and counted
-    report = sims[0].step(np.r_[l0[:7], robot.max_length + 1.0])
+    report = sims[0].step(np.r_[l0[:7], robot.max_length[7] + 1.0])
     assert report.clamped_high == 1
     assert report.clamped_low == 0
 

@@ -76,7 +76,8 @@ def test_pose_angles_take_either_convention_and_say_which() -> None:
     """--angles xyz is CASPR's Euler XYZ, R = Rx(a)·Ry(b)·Rz(c); the default rpy is R = Rz(yaw)·Ry(pitch)·Rx(roll)."""
     robot = load_robot("caroca")
     a, b, c = 0.1, -0.2, 0.3
-    cases = {"xyz": rotation(0, a) @ rotation(1, b) @ rotation(2, c), "rpy": rotation(2, c) @ rotation(1, b) @ rotation(0, a)}
+    cases = {"xyz": rotation(0, a) @ rotation(1, b) @ rotation(2, c),
+             "rpy": rotation(2, c) @ rotation(1, b) @ rotation(0, a)}
     for angles, R in cases.items():
         out = _json("ik", "caroca", "--pose", "0.1", "0", "1.5", str(a), str(b), str(c), "--angles", angles)
         assert np.allclose(out["lengths"], inverse_kinematics(robot, [0.1, 0.0, 1.5], R).lengths, rtol=0, atol=1e-12)
@@ -95,7 +96,8 @@ def test_help_lists_the_pose_and_wrench_and_the_angle_convention(command: str, f
     options = proc.stdout.split("Options:")[1]
     for flag in flags:
         assert f"  {flag} " in options, (flag, proc.stdout)
-    assert "Rz(yaw)·Ry(pitch)·Rx(roll)" in options and "Rx(a)·Ry(b)·Rz(c)" in options
+    assert "Rz(yaw)·Ry(pitch)·Rx(roll)" in options
+    assert "Rx(a)·Ry(b)·Rz(c)" in options
 
 
 @pytest.mark.parametrize(

@@ -250,7 +250,9 @@ def test_with_mass_uses_the_solid_shape_inertia(shape: Shape) -> None:
     assert not heavier.inertia.flags.writeable
     # Only the mass and the inertia change, and the original robot is untouched.
     assert np.array_equal(heavier.platform_points, robot.platform_points)
-    assert (heavier.tmin, heavier.tmax, heavier.name) == (robot.tmin, robot.tmax, robot.name)
+    assert np.array_equal(heavier.tmin, robot.tmin)
+    assert np.array_equal(heavier.tmax, robot.tmax)
+    assert heavier.name == robot.name
     assert robot.mass == 150.0
     assert np.array_equal(robot.inertia, np.diag([6.5, 20.0, 22.5]))
 

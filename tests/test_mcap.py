@@ -157,7 +157,8 @@ def test_the_sink_writes_every_row_of_the_recorders_batches(tmp_path: Path) -> N
     tensions = by_step(topics[fox.TENSIONS])
     assert sorted(tensions) == list(range(1, n + 1))  # state 0: nothing applied yet
     assert all(tensions[s.step][1]["tensions"] == list(s.tensions) for s in states[1:])
-    assert tensions[1][1]["tmax"] == robot.tmax
+    assert tensions[1][1]["tmax"] == robot.tmax[0]
+    assert "cable_tmax" not in tensions[1][1]  # the same limits for every cable
     cmd = by_step(topics[fox.COMMAND])
     for c in commands:
         msg = cmd[c.step][1]

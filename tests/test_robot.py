@@ -39,7 +39,7 @@ def static_tensions(robot: Robot, position: np.ndarray, R: np.ndarray) -> np.nda
     d /= np.linalg.norm(d, axis=1, keepdims=True)
     W = np.vstack([d.T, np.cross(pts - position, d).T])
     weight = np.array([0.0, 0.0, -G * robot.mass, 0.0, 0.0, 0.0])
-    res = linprog(np.ones(robot.m), A_eq=W, b_eq=-weight, bounds=[(robot.tmin, robot.tmax)] * robot.m)
+    res = linprog(np.ones(robot.m), A_eq=W, b_eq=-weight, bounds=list(zip(robot.tmin, robot.tmax, strict=True)))
     if res.status != 0:
         return None
     f = np.asarray(res.x)
@@ -69,7 +69,8 @@ def test_shipped_robot_loads_with_consistent_data(name: str) -> None:
         assert not arr.flags.writeable
     assert np.allclose(robot.inertia, robot.inertia.T)
     assert np.linalg.eigvalsh(robot.inertia).min() > 0.0
-    assert 0.0 <= robot.tmin < robot.tmax
+    assert np.all(robot.tmin >= 0.0)
+    assert np.all(robot.tmin < robot.tmax)
     assert np.allclose(robot.home_rotation @ robot.home_rotation.T, np.eye(3))
 
     # The frame points and the home position are inside the frame box.
@@ -82,7 +83,7 @@ def test_shipped_robot_loads_with_consistent_data(name: str) -> None:
     # The winch can pay out every cable anywhere in the frame box (corners are the farthest points).
     corners = np.array(list(itertools.product(*zip(robot.frame_min, robot.frame_max, strict=True))))
     farthest = np.linalg.norm(robot.frame_points[:, None, :] - corners[None, :, :], axis=2).max()
-    assert farthest <= robot.max_length
+    assert np.all(farthest <= robot.max_length)
 
     # The platform points are on (or in) the platform's shape, centred at the centre of mass.
     if robot.shape.type == "box":
@@ -171,7 +172,8 @@ def test_every_given_key_is_kept() -> None:
     assert np.allclose(robot.home_rotation, rpy_to_matrix(0.1, -0.05, 0.3))
     assert np.array_equal(robot.home_position, [0.2, -0.1, 1.2])
     assert (robot.cable_damping, robot.passive_damping) == (0.5, 0.02)
-    assert (robot.tmin, robot.tmax, robot.max_length, robot.max_speed) == (2.0, 800.0, 7.0, 3.0)
+    assert (robot.tmin.tolist(), robot.tmax.tolist(), robot.max_length.tolist(), robot.max_speed) == (
+        [2.0] * robot.m, [800.0] * robot.m, [7.0] * robot.m, 3.0)
     assert robot.shape.type == "cylinder"
     assert robot.shape.size == (0.3, 0.2)
     assert np.array_equal(robot.frame_points[3], [2.0, -2.0, 3.0])

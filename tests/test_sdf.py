@@ -128,12 +128,12 @@ def test_links_and_joints_match_the_robot_file(name: str) -> None:
         # axis −z of the leg frame, expressed in the world: from the platform point towards a_i.
         axis_world = Rl @ nums(prismatic.find("axis/xyz"))
         np.testing.assert_allclose(axis_world, ik.directions[i], atol=1e-12)
-        assert float(prismatic.findtext("axis/limit/effort")) == robot.tmax
+        assert float(prismatic.findtext("axis/limit/effort")) == robot.tmax[i]
         assert float(prismatic.findtext("axis/limit/velocity")) == robot.max_speed
         assert float(prismatic.findtext("axis/dynamics/damping")) == robot.cable_damping
         lo, hi = float(prismatic.findtext("axis/limit/lower")), float(prismatic.findtext("axis/limit/upper"))
         assert hi == pytest.approx(ik.lengths[i], abs=1e-12)  # position l_home − l: l = 0 at the top
-        assert hi - lo == pytest.approx(robot.max_length, abs=1e-12)
+        assert hi - lo == pytest.approx(robot.max_length[i], abs=1e-12)
 
         ball = joints[f"cable_{i}_ball"]
         bp, bR = pose(ball)  # in the child's (platform's) frame: b_i

@@ -315,7 +315,8 @@ def test_clamped_tensions_are_the_ones_applied() -> None:
     commanded = np.array([-20.0, 300.0, 2e4, 400.0, 0.0, -1.0, 15000.0, 600.0])
     sim = PlatformSim(robot)
     report = sim.step(commanded)
-    applied = np.array([0.0, 300.0, robot.tmax, 400.0, 0.0, 0.0, robot.tmax, 600.0])
+    tmax = robot.tmax[0]
+    applied = np.array([0.0, 300.0, tmax, 400.0, 0.0, 0.0, tmax, 600.0])
     np.testing.assert_array_equal(report.applied, applied)
     assert (report.clamped_low, report.clamped_high) == (2, 2)
     np.testing.assert_array_equal(sim.state().tensions, applied)

@@ -283,7 +283,7 @@ def test_one_step_matches_newton_euler_within_the_link_mass_perturbation(robot_n
 def test_negative_and_excessive_tensions_are_clamped() -> None:
     robot = caroca_15kg()
     p, R, twist = moving_state(robot, spinning=True)
-    commanded = np.array([-30.0, 40.0, -1e-9, 60.0, robot.tmax + 5.0, 20.0, -1e4, 80.0])
+    commanded = np.array([-30.0, 40.0, -1e-9, 60.0, robot.tmax[4] + 5.0, 20.0, -1e4, 80.0])
     clamped = np.clip(commanded, 0.0, robot.tmax)
     sim = UpsSim(robot, DT, p, R, twist)
     report = sim.step(commanded)

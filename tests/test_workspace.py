@@ -181,7 +181,7 @@ def axis_limits(mass: float, tmin: float, tmax: float) -> tuple[float, float]:
 @pytest.mark.parametrize("payload", [0.0, 0.3, 0.5])
 def test_point_mass_axis_against_the_closed_form(payload: float) -> None:
     robot = load_robot("point_mass_4")
-    low, high = axis_limits(robot.mass + payload, robot.tmin, robot.tmax)
+    low, high = axis_limits(robot.mass + payload, float(robot.tmin[0]), float(robot.tmax[0]))
     assert 0.0 < low < high < 4.0
     z = np.array([low - 1e-3, low + 1e-3, 0.5 * (low + high), high - 1e-3, high + 1e-3])
     got = wrench_feasible(robot, np.column_stack([np.zeros(5), np.zeros(5), z]), payload=payload)

@@ -52,8 +52,8 @@ class ControllerCore:
     _law: FeedbackLaw = field(init=False, repr=False)
     _wrench_matrix: WrenchMatrix = field(init=False, repr=False)
     _rows: list[int] | None = field(init=False, repr=False)
-    _tmin: float = field(init=False, repr=False)
-    _tmax: float = field(init=False, repr=False)
+    _tmin: float | np.ndarray = field(init=False, repr=False)
+    _tmax: float | np.ndarray = field(init=False, repr=False)
 
     def __post_init__(self) -> None:
         if self.output not in ("tensions", "lengths"):
@@ -66,7 +66,10 @@ class ControllerCore:
         self._wrench_matrix = WrenchMatrix(self.robot)
         rows = self.rows
         self._rows = None if rows == [0, 1, 2, 3, 4, 5] else rows
-        self._tmin, self._tmax = float(self.robot.tmin), float(self.robot.tmax)
+        # (one number each when every cable has the same limits: the distribution's cheapest input)
+        uniform = self.robot.uniform_limits
+        self._tmin = float(self.robot.tmin[0]) if uniform else self.robot.tmin
+        self._tmax = float(self.robot.tmax[0]) if uniform else self.robot.tmax
 
     @classmethod
     def from_scenario(cls, scenario: Scenario) -> ControllerCore:

@@ -104,7 +104,7 @@ class IbvsCore:
         p = self.position + self.twist[:3] * ahead
         R = rotvec_to_matrix(self.twist[3:] * ahead) @ self.rotation
         wrench = required_wrench(self.robot, R, self.twist, self.kv * (self.target - self.twist))
-        return self.tda.solve(self._W(p, R), wrench, float(self.robot.tmin), float(self.robot.tmax))
+        return self.tda.solve(self._W(p, R), wrench, self.robot.tmin, self.robot.tmax)
 
 
 def ibvs_from_scenario(scenario: Any) -> IbvsCore:

@@ -132,8 +132,10 @@ class RecorderNode(Node):
             "duration": sc.duration,
             "total_steps": sc.total_steps,
             "cables": self.m,
-            "tmin": self.robot.tmin,
-            "tmax": self.robot.tmax,
+            "tmin": self.robot.common_tension_range[0],
+            "tmax": self.robot.common_tension_range[1],
+            **({} if self.robot.uniform_limits else {"cable_tmin": self.robot.tmin.tolist(),
+                                                     "cable_tmax": self.robot.tmax.tolist()}),
             "scene_every": self.core.settings.scene_every,
             "path_every": self.core.settings.path_every,
             "info": session_info(sc),
@@ -145,7 +147,7 @@ class RecorderNode(Node):
         rec.send_recording_name(f"{sc.name} ({self.keys.session})")
         recording.log_session(rec, self.session_description())
         recording.log_scene(rec, self.robot)
-        recording.log_series_styles(rec, self.m)
+        recording.log_series_styles(rec, self.m, per_cable_limits=not self.robot.uniform_limits)
         recording.log_planned_path(rec, self.planned_path)
         recording.log_cameras(rec, self.scenario.cameras)
 
@@ -266,12 +268,10 @@ class RecorderNode(Node):
             ends = (
                 [0, len(k) - 1] if len(k) > 1 else list(range(len(k)))
             )  # a straight line: two points a batch
-            recording.send_scalars(
-                rec, recording.TENSION_MIN, k[ends], t[ends], np.full(len(ends), robot.tmin)
-            )
-            recording.send_scalars(
-                rec, recording.TENSION_MAX, k[ends], t[ends], np.full(len(ends), robot.tmax)
-            )
+            for path, limit in ((recording.TENSION_MIN, robot.tmin), (recording.TENSION_MAX, robot.tmax)):
+                # one line, or one per cable with per-cable limits
+                values = np.full(len(ends), limit[0]) if robot.uniform_limits else np.tile(limit, (len(ends), 1))
+                recording.send_scalars(rec, path, k[ends], t[ends], values)
             sc = s.scene
             recording.send_poses(rec, recording.PLATFORM, s.step[sc], s.t[sc], s.pose[sc])
             recording.send_cables(rec, robot, s.step[sc], s.t[sc], s.pose[sc], s.tensions[sc])

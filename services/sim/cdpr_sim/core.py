@@ -68,6 +68,7 @@ The same inputs give bit-identical outputs; nothing is random and no module stat
 from __future__ import annotations
 
 import math
+import operator
 from dataclasses import dataclass, field
 from typing import Any, Protocol
 
@@ -86,8 +87,9 @@ _FORCE_HALF = np.array([0.0, 0.0, 0.0, 1.0, 1.0, 1.0])  # np.square(rows [a_i ×
 _FORCE_HALF.flags.writeable = False
 
 
-def clamp_tensions(commanded: np.ndarray, tmax: float) -> tuple[np.ndarray, int, int]:
-    """What the cables can apply: negatives → 0 (a cable only pulls), above ``tmax`` → ``tmax``.
+def clamp_tensions(commanded: np.ndarray, tmax: float | np.ndarray) -> tuple[np.ndarray, int, int]:
+    """What the cables can apply: negatives → 0 (a cable only pulls), above ``tmax`` → ``tmax`` (a number for
+    every cable, or one per cable: :func:`tension_ceiling` gives the cheaper form for a robot).
 
     Returns ``(applied, n_clamped_low, n_clamped_high)``. Pure: ``commanded`` is not modified. ``tmin``
     is not enforced here (that is the controller's business). A NaN raises ``ValueError``.
@@ -95,13 +97,19 @@ def clamp_tensions(commanded: np.ndarray, tmax: float) -> tuple[np.ndarray, int,
     f = np.asarray(commanded, dtype=float)
     if f.ndim == 1 and f.size:  # the usual case, a few numbers: reductions on a list beat numpy's
         values = f.tolist()
-        if not math.isnan(sum(values)) and min(values) >= 0.0 and max(values) <= tmax:
+        if not math.isnan(sum(values)) and min(values) >= 0.0 and (
+                max(values) <= tmax if isinstance(tmax, float) else all(map(operator.le, values, tmax.tolist()))):
             return f.copy(), 0, 0  # no NaN (it would make the sum NaN) and nothing to clamp
     if np.isnan(f).any():
         raise ValueError("tensions contain NaN")
     low = int(np.count_nonzero(f < 0.0))
     high = int(np.count_nonzero(f > tmax))
     return np.minimum(np.maximum(f, 0.0), tmax), low, high
+
+
+def tension_ceiling(robot: Robot) -> float | np.ndarray:
+    """``robot.tmax`` as :func:`clamp_tensions` takes it fastest: one number when every cable has the same."""
+    return float(robot.tmax[0]) if robot.uniform_limits else robot.tmax
 
 
 @dataclass(frozen=True)
@@ -269,6 +277,7 @@ class PlatformSim:
         self._platform = PlatformBody(robot, self.dt)
         self._world, self._joint = self._platform.world, self._platform.joint
         self._planar = self._platform.planar
+        self._tmax = tension_ceiling(self.robot)
         self._point_mass = robot.mode == "point_mass"
         self._shape = (robot.m,)  # of a command
         self._tensions = readonly(np.zeros(robot.m))
@@ -361,7 +370,7 @@ class PlatformSim:
         commanded = np.asarray(tensions, dtype=float)
         if commanded.shape != self._shape:
             raise ValueError(f"expected {self.robot.m} tensions, got shape {commanded.shape}")
-        applied, low, high = clamp_tensions(commanded, self.robot.tmax)
+        applied, low, high = clamp_tensions(commanded, self._tmax)
         pose, twist, unnormalised, lengths = self._read()
         lines = unnormalised / lengths[:, None]  # G: rows [a_i × d_i; d_i]
         damping = lines @ origin_twist(pose, twist, self._minus_c)  # c·l̇ = −c·G [ω; ṫ + t × ω]

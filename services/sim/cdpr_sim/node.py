@@ -441,10 +441,10 @@ class SimNode(Node):
             self.warn(
                 "clamped",
                 f"step {k}: clamped {report.clamped_low} tension(s) below 0 and "
-                f"{report.clamped_high} above tmax = {self.scenario.robot.tmax:g} N"
+                f"{report.clamped_high} above tmax = {_limit_text(self.scenario.robot.tmax)} N"
                 if cmd.lengths is None else
                 f"step {k}: clamped {report.clamped_high} length(s) above max_length = "
-                f"{self.scenario.robot.max_length:g} m",
+                f"{_limit_text(self.scenario.robot.max_length)} m",
             )
         if (len(self.block_states) >= TELEMETRY_EVERY or self.step >= self.total_steps
                 or 0 <= self.flush_at <= k or time.monotonic() - self.flushed_at >= TELEMETRY_PERIOD):
@@ -459,3 +459,9 @@ class SimNode(Node):
             self.renderer.close()
         log(self.name, f"stopped at step {self.step}/{self.total_steps}; clamped commands: {self.clamped}"
             + (f"; {self.counters}" if self.counters else ""))
+
+
+def _limit_text(limit: np.ndarray) -> str:
+    """A per-cable limit for a log line: one number when every cable has it, else the list."""
+    values = limit.tolist()
+    return f"{values[0]:g}" if min(values) == max(values) else "[" + ", ".join(f"{v:g}" for v in values) + "]"

@@ -95,6 +95,7 @@ from cdpr_sim.core import (
     restore_world,
     start_pose,
     state_message,
+    tension_ceiling,
     world_snapshot,
 )
 
@@ -278,7 +279,7 @@ class UpsSim:
         commanded = np.asarray(tensions, dtype=float)
         if commanded.shape != (self.robot.m,):
             raise ValueError(f"expected {self.robot.m} tensions, got shape {commanded.shape}")
-        applied, low, high = clamp_tensions(commanded, self.robot.tmax)
+        applied, low, high = clamp_tensions(commanded, tension_ceiling(self.robot))
         s = self._snapshot()
         damping = self.robot.cable_damping * s.rates
         c_p = self.robot.passive_damping

@@ -92,6 +92,7 @@ from cdpr_sim.core import (
     restore_world,
     start_pose,
     state_message,
+    tension_ceiling,
     world_snapshot,
 )
 
@@ -129,7 +130,7 @@ def drum_step(p: WinchSpec, s: WinchState, torque: Array, tension: Array, integr
     return WinchState(s.angle + h * speed, speed, integral)
 
 
-def end_stops(s: WinchState, low: float, high: float) -> tuple[WinchState, int]:
+def end_stops(s: WinchState, low: float | Array, high: float | Array) -> tuple[WinchState, int]:
     """Drums past an end stop (angle outside [low, high]) put back on it, their speed towards it set to 0
     (an inelastic stop); the other drums are returned unchanged. Pure: (state, drums at a stop)."""
     below, above = s.angle <= low, s.angle >= high
@@ -427,7 +428,7 @@ class WinchSim(ABC):
         return report
 
     def _step_tensions(self, commanded: Array) -> StepReport:
-        applied, low, high = clamp_tensions(commanded, self.robot.tmax)
+        applied, low, high = clamp_tensions(commanded, tension_ceiling(self.robot))
         g = self._read()
         forces, l0 = self._law_for_tension(g, applied)
         self._apply(g, forces.forces)

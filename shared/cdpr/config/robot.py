@@ -87,6 +87,10 @@ class CableLimitsSpec(Strict):
 class CableSpec(Strict):
     frame: Vec3 = Field(description="a_i, frame (world) attach point")
     platform: Vec3 = Field(description="b_i, platform attach point in the platform frame")
+    tmin: FiniteFloat | None = Field(None, ge=0.0, description="this cable's least tension, N (default limits.tmin)")
+    tmax: PositiveFloat | None = Field(None, description="this cable's greatest tension, N (default limits.tmax)")
+    max_length: PositiveFloat | None = Field(None, description="this cable's longest length, m (default "
+                                                                "limits.max_length)")
 
 
 class DampingSpec(Strict):
@@ -122,12 +126,22 @@ class RobotSpec(Strict):
     home: HomeSpec
     frame_box: FrameBoxSpec
 
+    def cable_limits(self, name: Literal["tmin", "tmax", "max_length"]) -> list[float]:
+        """One limit per cable: the cable's own, else the robot's ``limits``."""
+        default = getattr(self.limits, name)
+        return [default if (v := getattr(c, name)) is None else v for c in self.cables]
+
 
 def robot_from_spec(spec: RobotSpec, where: str) -> Robot:
     """Build and check a Robot; ``where`` names the file in errors."""
     inertia = np.asarray(spec.platform.inertia, dtype=float)
     if inertia.shape == (3,):
         inertia = np.diag(inertia)
+    lo, hi = spec.cable_limits("tmin"), spec.cable_limits("tmax")
+    for i, (low, high) in enumerate(zip(lo, hi, strict=True)):
+        if low > high:
+            raise InputError(f"{where}: cables.{i}: tmin ({low}) must not exceed tmax ({high}) (limits.tmin/tmax "
+                             "where the cable gives none)")
     a = np.array([c.frame for c in spec.cables])
     b = np.array([c.platform for c in spec.cables])
     robot = Robot(
@@ -140,9 +154,9 @@ def robot_from_spec(spec: RobotSpec, where: str) -> Robot:
         mass=spec.platform.mass,
         inertia=frozen_array(inertia),
         shape=Shape(spec.platform.shape.type, tuple(spec.platform.shape.size)),
-        tmin=spec.limits.tmin,
-        tmax=spec.limits.tmax,
-        max_length=spec.limits.max_length,
+        tmin=np.array(spec.cable_limits("tmin")),
+        tmax=np.array(spec.cable_limits("tmax")),
+        max_length=np.array(spec.cable_limits("max_length")),
         max_speed=spec.limits.max_speed,
         cable_damping=spec.damping.cable,
         passive_damping=spec.damping.passive,
@@ -163,8 +177,9 @@ def check_home_held(robot: Robot, where: str, rpy: list[float]) -> None:
         return
     pos = ", ".join(f"{x:g}" for x in robot.home_position)
     angles = ", ".join(f"{x:g}" for x in rpy)
+    which = "limits.tmin, limits.tmax" if robot.uniform_limits else "per cable: cables.i.tmin/tmax, else limits"
     raise InputError(
-        f"{where}: home: no tensions in [{robot.tmin:g}, {robot.tmax:g}] N (limits.tmin, limits.tmax) hold the "
+        f"{where}: home: no tensions in {robot.tension_limits_text()} ({which}) hold the "
         f"{robot.mass:g} kg platform at rest at the home pose (position [{pos}] m, rpy [{angles}] rad): "
         "move home into the workspace (cdpr workspace) or widen the limits"
     )

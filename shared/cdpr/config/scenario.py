@@ -40,8 +40,11 @@ class PlatformOverride(Strict):
 
 
 class LimitsOverride(Strict):
-    tmin: FiniteFloat | None = Field(None, ge=0.0)
-    tmax: PositiveFloat | None = None
+    """The scenario's tension limits: each one given replaces the robot's for every cable (per-cable limits of
+    the robot file included); one left out keeps the robot's."""
+
+    tmin: FiniteFloat | None = Field(None, ge=0.0, description="N, for every cable")
+    tmax: PositiveFloat | None = Field(None, description="N, for every cable")
 
 
 class TdaSpec(Strict):
@@ -379,11 +382,13 @@ def scenario_from_spec(spec: ScenarioSpec, where: str, base_dir: Path | None = N
     if spec.platform.mass is not None:
         robot = robot.with_mass(spec.platform.mass)
     robot = robot.with_payload(spec.platform.payload)
-    tmin = robot.tmin if spec.limits.tmin is None else spec.limits.tmin
-    tmax = robot.tmax if spec.limits.tmax is None else spec.limits.tmax
-    if tmin > tmax:
-        raise InputError(f"{where}: limits: tmin ({tmin}) must not exceed tmax ({tmax})")
-    robot = robot.replace(tmin=float(tmin), tmax=float(tmax))
+    tmin = robot.tmin if spec.limits.tmin is None else np.full(robot.m, float(spec.limits.tmin))
+    tmax = robot.tmax if spec.limits.tmax is None else np.full(robot.m, float(spec.limits.tmax))
+    if np.any(tmin > tmax):
+        i = int(np.argmax(tmin > tmax))
+        raise InputError(f"{where}: limits: tmin ({tmin[i]:g}) must not exceed tmax ({tmax[i]:g})"
+                         + ("" if robot.uniform_limits else f" (cable {i})"))
+    robot = robot.replace(tmin=tmin, tmax=tmax)
     bias = spec.sim.sensors.load_cells.bias if spec.sim.sensors is not None else 0.0
     if isinstance(bias, list) and len(bias) != robot.m:
         raise InputError(f"{where}: sim.sensors.load_cells.bias: expected one number or {robot.m} (one per "

@@ -276,11 +276,11 @@ def write_point_files(point: Point, folder: Path) -> None:
         (folder / name).write_text(text, encoding="utf-8")
 
 
-def check_point(point: Point, folder: Path) -> tuple[float, float]:
-    """Load the point's scenario files as ``cdpr run`` will (InputError if invalid); its (tmin, tmax)."""
+def check_point(point: Point, folder: Path) -> tuple[list[float], list[float]]:
+    """Load the point's scenario files as ``cdpr run`` will (InputError if invalid); its (tmin, tmax) per cable."""
     from cdpr.config.scenario import load_scenario
 
     scenario = load_scenario(folder / "scenario.yaml")
     if point.split:
         load_scenario(folder / "controller.yaml")
-    return scenario.robot.tmin, scenario.robot.tmax
+    return scenario.robot.tmin.tolist(), scenario.robot.tmax.tolist()

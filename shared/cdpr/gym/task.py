@@ -94,7 +94,7 @@ class Task:
         robot = self.scenario.robot
         self.m = robot.m
         self.rows = list(self.scenario_rows())
-        self.tmin, self.tmax = float(robot.tmin), float(robot.tmax)
+        self.tmin, self.tmax = robot.tmin, robot.tmax  # (m,) each cable's limits
         self.weight = float(robot.mass) * float(-GRAVITY[2])  # m g, N
         radius = float(np.max(np.linalg.norm(np.asarray(robot.platform_points, dtype=float), axis=1)))
         self.radius = max(radius, 0.1)  # m: the moment arm of the wrench scales (a point mass has none)
@@ -146,7 +146,7 @@ class Task:
             np.full(6, sp_speed),
             np.full(6, sp_accel),
             np.full(self.m, self.max_length),
-            np.full(self.m, 1.5 * self.tmax),  # load cells: noise and bias around [0, tmax]
+            1.5 * self.tmax,  # load cells: noise and bias around [0, tmax]
         ])
         low = -high
         low[24:] = 0.0
@@ -231,6 +231,7 @@ class Task:
             return f"position error above {lim.max_position_error:g} m"
         if float(np.linalg.norm(e_r)) > lim.max_orientation_error:
             return f"orientation error above {lim.max_orientation_error:g} rad"
-        if state.step > 0 and min(state.tensions) < lim.slack_fraction * self.tmin:
-            return f"a cable went slack (tension below {lim.slack_fraction * self.tmin:g} N)"
+        if state.step > 0 and bool(np.any(slack := np.asarray(state.tensions) < lim.slack_fraction * self.tmin)):
+            i = int(np.argmax(slack))
+            return f"a cable went slack (cable {i}: tension below {lim.slack_fraction * self.tmin[i]:g} N)"
         return None

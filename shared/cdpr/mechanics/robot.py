@@ -3,6 +3,8 @@
 A robot is a rigid platform hung from a fixed frame by m cables. Cable i joins the frame point a_i
 (world frame) to the platform point b_i (platform frame, origin at the platform's centre of mass).
 Everything is SI: m, kg, kg·m², N, s. Robot files are read into it by :mod:`cdpr.config.robot`.
+Limits are per cable: ``tmin``, ``tmax`` and ``max_length`` are (m,) arrays (a scalar given to the constructor
+or to :meth:`Robot.replace` applies to every cable).
 
 Three modes:
 
@@ -70,9 +72,9 @@ class Robot:
     mass: float
     inertia: Array  # (3, 3) about the centre of mass, platform frame
     shape: Shape
-    tmin: float
-    tmax: float
-    max_length: float
+    tmin: Array  # (m,) least tension of each cable, N
+    tmax: Array  # (m,) greatest tension of each cable, N
+    max_length: Array  # (m,) the longest each cable may be, m
     max_speed: float
     cable_damping: float
     passive_damping: float
@@ -80,6 +82,32 @@ class Robot:
     home_rotation: Array  # (3, 3)
     frame_min: Array
     frame_max: Array
+
+    def __post_init__(self) -> None:
+        m = self.m
+        for name in ("tmin", "tmax", "max_length"):
+            value = np.asarray(getattr(self, name), dtype=float)
+            if value.shape not in ((), (m,)):
+                raise InputError(f"{name}: expected one number or {m} (one per cable), got shape {value.shape}")
+            object.__setattr__(self, name, frozen_array(np.broadcast_to(value, (m,))))
+
+    @property
+    def uniform_limits(self) -> bool:
+        """Every cable has the same tension limits."""
+        return bool(np.all(self.tmin == self.tmin[0]) and np.all(self.tmax == self.tmax[0]))
+
+    @property
+    def common_tension_range(self) -> tuple[float, float]:
+        """``(max tmin, min tmax)``: the tensions admissible for every cable (what a client that takes one range
+        for all cables must keep to; ``session/info``'s ``tension_limits``)."""
+        return float(self.tmin.max()), float(self.tmax.min())
+
+    def tension_limits_text(self) -> str:
+        """The tension limits for a message: ``[1, 6500] N``, or per cable ``[0, 1000]/[0, 5000]/… N``."""
+        if self.uniform_limits:
+            return f"[{self.tmin[0]:g}, {self.tmax[0]:g}] N"
+        pairs = zip(self.tmin.tolist(), self.tmax.tolist(), strict=True)
+        return "/".join(f"[{lo:g}, {hi:g}]" for lo, hi in pairs) + " N"
 
     @property
     def m(self) -> int:
@@ -96,6 +124,15 @@ class Robot:
         return CONTROLLED_ROWS[self.mode]
 
     def replace(self, **changes: Any) -> Robot:
+        """A copy with ``changes``; with another number of cables, limits the same for every cable carry over
+        (per-cable ones must be given anew)."""
+        if "frame_points" in changes and np.shape(changes["frame_points"])[0] != self.m:
+            for name in ("tmin", "tmax", "max_length"):
+                value = getattr(self, name)
+                if name not in changes:
+                    if np.any(value != value[0]):
+                        raise InputError(f"{name}: the robot has per-cable limits: give them for the new cables")
+                    changes[name] = float(value[0])
         frozen: dict[str, Any] = {k: frozen_array(v) if isinstance(v, np.ndarray) else v for k, v in changes.items()}
         return dataclasses.replace(self, **frozen)
 
@@ -122,8 +159,10 @@ class Robot:
             "mass": self.mass,
             "inertia": self.inertia.tolist(),
             "shape": {"type": self.shape.type, "size": list(self.shape.size)},
-            "tension_limits": [self.tmin, self.tmax],
-            "max_length": self.max_length,
+            "tension_limits": list(self.common_tension_range),
+            "max_length": float(self.max_length.min()),
+            "cable_limits": {"tmin": self.tmin.tolist(), "tmax": self.tmax.tolist(),
+                             "max_length": self.max_length.tolist()},
             "max_speed": self.max_speed,
             "home": {"position": self.home_position.tolist(), "rotation": self.home_rotation.tolist()},
             "frame_points": self.frame_points.tolist(),

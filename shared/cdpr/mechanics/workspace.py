@@ -196,8 +196,8 @@ def wrench_feasible(
     positions: ArrayLike,
     R: ArrayLike | None = None,
     payload: float = 0.0,
-    tmin: float | None = None,
-    tmax: float | None = None,
+    tmin: ArrayLike | None = None,
+    tmax: ArrayLike | None = None,
     *,
     rows: tuple[int, ...] | None = None,
 ) -> Mask:
@@ -261,8 +261,8 @@ def compute_workspace(
     step: float,
     R: ArrayLike | None = None,
     payload: float = 0.0,
-    tmin: float | None = None,
-    tmax: float | None = None,
+    tmin: ArrayLike | None = None,
+    tmax: ArrayLike | None = None,
 ) -> Workspace:
     """The static workspace of ``robot`` (+ ``payload``) at orientation R on a grid of ``step`` m."""
     points, shape, spacing = grid_points(robot, step)
@@ -333,5 +333,5 @@ def check_trajectory(robot: Robot, trajectory: Trajectory, variant: Variant, whe
     pos = ", ".join(f"{x:.3f}" for x in v.position)
     raise InputError(
         f"{where}: trajectory: leaves the wrench-feasible workspace at t = {v.t:.2f} s (position [{pos}]): "
-        f"no tensions in [{robot.tmin:g}, {robot.tmax:g}] N {what}"
+        f"no tensions in {robot.tension_limits_text()} {what}"
     )

@@ -74,7 +74,11 @@ def robot_from_summary(summary: dict[str, Any]) -> Robot:
         m = a.shape[0] if a.ndim == 2 else 0
         if a.shape != (m, 3) or m == 0:
             raise ProtocolError(f"{where}.frame_points: expected m rows of 3 numbers")
-        tmin, tmax = (float(x) for x in summary["tension_limits"])
+        if (per_cable := summary.get("cable_limits")) is not None:  # the limits of each cable
+            tmin, tmax, max_length = (_readonly(per_cable[k], (m,)) for k in ("tmin", "tmax", "max_length"))
+        else:  # one range for every cable
+            tmin, tmax = (_readonly(x) for x in summary["tension_limits"])
+            max_length = _readonly(summary["max_length"])
         robot = Robot(
             name=str(summary["name"]),
             description=str(summary.get("description", "")),
@@ -87,7 +91,7 @@ def robot_from_summary(summary: dict[str, Any]) -> Robot:
             shape=Shape(str(summary["shape"]["type"]), tuple(float(x) for x in summary["shape"]["size"])),
             tmin=tmin,
             tmax=tmax,
-            max_length=float(summary["max_length"]),
+            max_length=max_length,
             max_speed=float(summary["max_speed"]),
             cable_damping=0.0,
             passive_damping=0.0,

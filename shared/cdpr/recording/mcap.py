@@ -98,16 +98,23 @@ def _schema(title: str, description: str, properties: Mapping[str, Any]) -> dict
         "type": "object",
         "properties": {"step": {**_INT, "description": "the clock's step k"},
                        "t": {**_NUM, "description": "simulation time k·dt, s"}, **properties},
-        "required": ["step", "t", *properties],
+        "required": ["step", "t", *(k for k in properties if k not in _OPTIONAL)],
     }
+
+
+_OPTIONAL = frozenset({"cable_tmin", "cable_tmax"})  # fields some messages of a channel leave out
 
 
 # The state's channels: schema title and description, and the fields every message of the channel repeats.
 _STATE_CHANNELS = {
     PLATFORM_STATE: ("cdpr.PlatformState", "the sim's state of the platform", {}),
     TENSIONS: ("cdpr.CableTensions", "tensions the sim applied over [t − dt, t]", {
-        "tmin": {**_NUM, "description": "lower tension limit, N"},
-        "tmax": {**_NUM, "description": "upper tension limit, N"},
+        "tmin": {**_NUM, "description": "lower tension limit, N (with per-cable limits: the highest cable's)"},
+        "tmax": {**_NUM, "description": "upper tension limit, N (with per-cable limits: the lowest cable's)"},
+        "cable_tmin": {"type": "array", "items": _NUM, "description": "each cable's lower limit, N (only with "
+                       "per-cable limits)"},
+        "cable_tmax": {"type": "array", "items": _NUM, "description": "each cable's upper limit, N (only with "
+                       "per-cable limits)"},
     }),
     LENGTHS: ("cdpr.CableLengths", "geometric cable lengths ‖a_i − t − R b_i‖", {}),
     COMMAND_TIMING: ("cdpr.CommandTiming", "how old the command that acted over [t − dt, t] was, and the watchdog", {}),
@@ -350,7 +357,10 @@ class FoxgloveSink:
         version = PROTOCOL_VERSION if protocol_version is None else protocol_version
         if self.writer is not None:
             self.writer.write_metadata(METADATA_NAME, metadata(self.session, version))
-        self._limits = {"tmin": float(robot.tmin), "tmax": float(robot.tmax)}
+        tmin, tmax = robot.common_tension_range
+        self._limits: dict[str, Any] = {"tmin": tmin, "tmax": tmax}
+        if not robot.uniform_limits:
+            self._limits.update(cable_tmin=robot.tmin.tolist(), cable_tmax=robot.tmax.tolist())
         self.last_ns = 0  # log time of the latest message
         self._static = self._static_messages(planned_path, version)
         for topic, msg in self._static:

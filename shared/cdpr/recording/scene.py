@@ -140,10 +140,12 @@ def cable_strips(robot: Robot, positions: ArrayLike, quaternions: ArrayLike) -> 
     return np.stack([b_world, a], axis=2)
 
 
-def tension_colors(tensions: ArrayLike, tmin: float, tmax: float) -> NDArray[np.uint8]:
-    """RGBA colours (…, 4) of tensions on the scale tmin → tmax (values outside are clipped)."""
+def tension_colors(tensions: ArrayLike, tmin: ArrayLike, tmax: ArrayLike) -> NDArray[np.uint8]:
+    """RGBA colours (…, 4) of tensions on the scale tmin → tmax (values outside are clipped); the limits are
+    numbers, or one per cable (the last axis of ``tensions``)."""
     f = np.asarray(tensions, dtype=float)
-    span = tmax - tmin if tmax > tmin else 1.0
+    tmin, tmax = np.asarray(tmin, dtype=float), np.asarray(tmax, dtype=float)
+    span = np.where(tmax > tmin, tmax - tmin, 1.0)
     u = np.clip((f - tmin) / span, 0.0, 1.0) * (len(_SCALE) - 1)
     lo = np.minimum(np.floor(u).astype(int), len(_SCALE) - 2)
     frac = (u - lo)[..., None]
@@ -390,8 +392,8 @@ def log_session(rec: Recording, info: Mapping[str, Any]) -> None:
     )
 
 
-def log_series_styles(rec: Recording, m: int) -> None:
-    """Static names and colours of the time series."""
+def log_series_styles(rec: Recording, m: int, per_cable_limits: bool = False) -> None:
+    """Static names and colours of the time series (``per_cable_limits``: a tmin and a tmax line per cable)."""
     xyz = rr.SeriesLines(names=list(AXES), colors=list(AXIS_COLORS))
     for path in (DESIRED_POSITION, ACTUAL_POSITION, POSITION_ERROR_AXES, ORIENTATION_ERROR_AXES):
         rec.log(path, xyz, static=True)
@@ -404,8 +406,13 @@ def log_series_styles(rec: Recording, m: int) -> None:
     palette = tension_palette(m)
     for i in range(m):
         rec.log(tension_series(i), rr.SeriesLines(names=[f"cable {i}"], colors=[palette[i]]), static=True)
-    rec.log(TENSION_MIN, rr.SeriesLines(names=["tmin"], colors=[(120, 120, 120)], widths=[2.0]), static=True)
-    rec.log(TENSION_MAX, rr.SeriesLines(names=["tmax"], colors=[(200, 0, 0)], widths=[2.0]), static=True)
+    if per_cable_limits:
+        for path, name in ((TENSION_MIN, "tmin"), (TENSION_MAX, "tmax")):
+            rec.log(path, rr.SeriesLines(names=[f"{name} cable {i}" for i in range(m)], colors=palette,
+                                         widths=[1.0] * m), static=True)
+    else:
+        rec.log(TENSION_MIN, rr.SeriesLines(names=["tmin"], colors=[(120, 120, 120)], widths=[2.0]), static=True)
+        rec.log(TENSION_MAX, rr.SeriesLines(names=["tmax"], colors=[(200, 0, 0)], widths=[2.0]), static=True)
 
 
 def tension_palette(m: int) -> list[tuple[int, int, int]]:

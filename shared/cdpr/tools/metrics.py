@@ -69,7 +69,7 @@ class RunMetrics:
             rot.append(float(np.linalg.norm(e)))
         return np.asarray(pos), np.asarray(rot)
 
-    def summary(self) -> dict[str, float | int | str | None]:
+    def summary(self) -> dict[str, float | int | str | list[float] | None]:
         pos, rot = self.errors()
         applied = [self.states[k].tensions for k in sorted(self.states) if k > 0]
         t = np.asarray(applied) if applied else np.zeros((0, 0))
@@ -87,6 +87,8 @@ class RunMetrics:
             "max_orientation_error": float(rot.max()) if rot.size else None,
             "tension_min": float(t.min()) if t.size else None,
             "tension_max": float(t.max()) if t.size else None,
+            "cable_tension_min": t.min(axis=0).tolist() if t.size else None,  # per cable, for per-cable limits
+            "cable_tension_max": t.max(axis=0).tolist() if t.size else None,
             "max_tension_change": float(change) if change is not None else None,
             "clamped_commands": last.clamped if last is not None else 0,
             "infeasible_commands": self.infeasible_commands,

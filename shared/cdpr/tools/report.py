@@ -279,9 +279,16 @@ def plot_tracking(data: RecordingData, out: str | Path) -> None:
     if np.isfinite(lo):
         pad = max(0.05 * (hi - lo), 1e-6 * max(abs(hi), 1.0), 0.5)
         ax.set_ylim(lo - pad, hi + pad)  # the limits are drawn only where they fall inside the data's range
-    ax.axhline(tmin, color="grey", linestyle="--", linewidth=1.0, label="tmin")
-    ax.axhline(tmax, color="red", linestyle="--", linewidth=1.0, label="tmax")
-    ax.set_title(f"Cable tensions (limits {tmin:g} – {tmax:g} N)")
+    if "cable_tmin" in info:  # per-cable limits: each cable's in its colour
+        for i, (a, b) in enumerate(zip(info["cable_tmin"], info["cable_tmax"], strict=True)):
+            color = np.array(palette[i % len(palette)]) / 255.0
+            ax.axhline(float(a), color=color, linestyle=":", linewidth=0.8)
+            ax.axhline(float(b), color=color, linestyle="--", linewidth=0.8)
+        ax.set_title("Cable tensions (dashed: each cable's limits)")
+    else:
+        ax.axhline(tmin, color="grey", linestyle="--", linewidth=1.0, label="tmin")
+        ax.axhline(tmax, color="red", linestyle="--", linewidth=1.0, label="tmax")
+        ax.set_title(f"Cable tensions (limits {tmin:g} – {tmax:g} N)")
     ax.set_xlabel("time (s)")
     ax.set_ylabel("N")
     ax.grid(True, alpha=0.3)

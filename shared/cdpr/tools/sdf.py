@@ -254,8 +254,8 @@ def sdf_world(robot: Robot, close_loops: bool = True, dt: float = 0.001) -> ET.E
             lower,
             "cable",
             "cylinder",
-            (CABLE_RADIUS, robot.max_length),
-            _vec([0, 0, -robot.max_length / 2, 0, 0, 0]),
+            (CABLE_RADIUS, float(robot.max_length[i])),
+            _vec([0, 0, -float(robot.max_length[i]) / 2, 0, 0, 0]),
             "0.1 0.1 0.1 1",
         )
         prismatic = _joint(
@@ -266,9 +266,9 @@ def sdf_world(robot: Robot, close_loops: bool = True, dt: float = 0.001) -> ET.E
             "axis",
             "0 0 -1",
             robot.cable_damping,
-            lower=length - robot.max_length,
+            lower=length - float(robot.max_length[i]),
             upper=length,
-            effort=robot.tmax,
+            effort=float(robot.tmax[i]),
             velocity=robot.max_speed,
         )
         if close_loops:

@@ -41,7 +41,7 @@ def mjcf(scenario: Scenario, integrator: str = "RK4") -> str:
     tendons = "\n".join(f'    <spatial name="cable{i}" damping="{float(robot.cable_damping)!r}">'
                         f'<site site="a{i}"/><site site="b{i}"/></spatial>' for i in range(robot.m))
     motors = "\n".join(f'    <motor name="winch{i}" tendon="cable{i}" gear="-1" ctrllimited="true" '
-                       f'ctrlrange="0 {float(robot.tmax)!r}"/>' for i in range(robot.m))
+                       f'ctrlrange="0 {float(robot.tmax[i])!r}"/>' for i in range(robot.m))
     return f"""<mujoco model="{robot.name}">
   <option timestep="{scenario.dt!r}" integrator="{integrator}" gravity="0 0 -9.81"/>
   <worldbody>

@@ -11,6 +11,7 @@ from typing import Any
 import numpy as np
 
 from cdpr.config.robot import RobotSpec, robot_from_spec
+from cdpr.errors import InputError
 from cdpr.mechanics.kinematics import cable_kinematics
 from cdpr.mechanics.robot import GRAVITY, Robot
 from cdpr.mechanics.rotation import rpy_to_matrix
@@ -62,7 +63,11 @@ def robot_spec(m: int, seed: int = 0) -> dict[str, Any]:
         cables = [{"frame": a.round(4).tolist(), "platform": b.round(4).tolist()}
                   for a, b in zip(frame, plat, strict=True)]
         spec = _spec(m, "spatial", cables, attempt)
-        if _well_conditioned(_robot(spec)):
+        try:
+            robot = _robot(spec)
+        except InputError:  # its platform cannot be held at home: no better than ill-conditioned
+            continue
+        if _well_conditioned(robot):
             return spec
     raise RuntimeError(f"no well-conditioned {m}-cable robot found from seed {seed}")
 
@@ -134,7 +139,7 @@ def bench_tda(sizes: Sequence[int], calls: int) -> dict[str, Any]:
     for m in sizes:
         robot = _robot(robot_spec(m))
         path = tda_path(robot, calls)
-        lo, hi = float(robot.tmin), float(robot.tmax)
+        lo, hi = float(robot.tmin[0]), float(robot.tmax[0])  # the bench's robots: one range for every cable
         methods: dict[str, dict[str, Any]] = {}
         answers: dict[str, list[np.ndarray]] = {}
         for name in sorted(METHODS):

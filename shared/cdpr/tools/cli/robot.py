@@ -155,10 +155,7 @@ def tda(ctx: click.Context, robot: str, angles: str, static: bool, payload: floa
     if method not in METHODS:
         raise InputError(f"--method: unknown method {method!r} (known: {', '.join(sorted(METHODS))})")
     r = load_robot(robot).with_payload(payload)
-    lo = r.tmin if tmin is None else tmin
-    hi = r.tmax if tmax is None else tmax
-    if not (np.isfinite(lo) and np.isfinite(hi)) or lo < 0 or lo > hi:
-        raise InputError(f"--tmin/--tmax: need 0 <= tmin <= tmax, got {lo} and {hi}")
+    lo, hi = _limits(r, tmin, tmax)
     position, R = _pose(_numbers("--pose", tuple(groups["--pose"])), angles)
     rows = list(r.controlled_rows)
     W = inverse_kinematics(r, position, R).wrench_matrix[rows]
@@ -182,6 +179,23 @@ def tda(ctx: click.Context, robot: str, angles: str, static: bool, payload: floa
     )
     if not result.feasible:
         sys.exit(INFEASIBLE_EXIT)
+
+
+def _limits(r: Any, tmin: float | None, tmax: float | None) -> tuple[np.ndarray, np.ndarray]:
+    """Each cable's (tmin, tmax): the robot's, where --tmin / --tmax (for every cable) do not replace them."""
+    lo = r.tmin if tmin is None else np.full(r.m, tmin)
+    hi = r.tmax if tmax is None else np.full(r.m, tmax)
+    if not (np.all(np.isfinite(lo)) and np.all(np.isfinite(hi))) or np.any(lo < 0) or np.any(lo > hi):
+        given = (f"{tmin}" if tmin is not None else "the robot's") + " and " + (
+            f"{tmax}" if tmax is not None else "the robot's")
+        raise InputError(f"--tmin/--tmax: need 0 <= tmin <= tmax for every cable, got {given}")
+    return lo, hi
+
+
+def _number_or_list(values: np.ndarray) -> float | list[float]:
+    """One number when every cable has it, else one per cable (for JSON)."""
+    out = values.tolist()
+    return out[0] if min(out) == max(out) else out
 
 
 # ------------------------------------------------------------------------------------------------
@@ -215,9 +229,7 @@ def workspace(robot: str, payload: float, mass: float | None, step: float,
 
     r = load_robot(robot)
     r = (r if mass is None else r.with_mass(mass)).with_payload(payload)
-    lo, hi = (r.tmin if tmin is None else tmin), (r.tmax if tmax is None else tmax)
-    if not (np.isfinite(lo) and np.isfinite(hi)) or lo < 0 or lo > hi:
-        raise InputError(f"--tmin/--tmax: need 0 <= tmin <= tmax, got {lo} and {hi}")
+    lo, hi = _limits(r, tmin, tmax)
     if not (np.isfinite(step) and step > 0):
         raise InputError(f"--step: must be a positive length in m, got {step}")
     if not np.all(np.isfinite(orientation)):
@@ -228,7 +240,8 @@ def workspace(robot: str, payload: float, mass: float | None, step: float,
     seconds = time.perf_counter() - start
     box = ws.bounding_box()
     out: dict[str, Any] = {
-        "robot": r.name, "mass": r.mass, "payload": payload, "tmin": lo, "tmax": hi,
+        "robot": r.name, "mass": r.mass, "payload": payload, "tmin": _number_or_list(lo),
+        "tmax": _number_or_list(hi),
         "orientation": list(orientation), "angles": angles, "step": step, "spacing": ws.spacing.tolist(),
         "grid": list(ws.shape),
         "points": int(ws.points.shape[0]), "feasible": int(ws.feasible.sum()), "fraction": ws.fraction,

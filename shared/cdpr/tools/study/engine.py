@@ -103,7 +103,7 @@ class Prepared:
     out: Path
     mode: str
     points: list[Point]
-    limits: dict[str, tuple[float, float]]  # point id -> its (tmin, tmax)
+    limits: dict[str, tuple[list[float], list[float]]]  # point id -> its (tmin, tmax) per cable
     rows: dict[str, dict[str, Any]]  # point id -> its row, for the points already finished or invalid
     todo: list[Point]
     resumed: int  # points whose result a previous run left
@@ -141,7 +141,7 @@ def prepare(study_file: str | Path, out: Path | None = None, mode: str | None = 
     out.mkdir(parents=True, exist_ok=True)
     (out / "study.yaml").write_text(resolved_study(spec, path, chosen), encoding="utf-8")
     rows: dict[str, dict[str, Any]] = {}
-    limits: dict[str, tuple[float, float]] = {}
+    limits: dict[str, tuple[list[float], list[float]]] = {}
     todo: list[Point] = []
     resumed = 0
     for point in points:

@@ -12,8 +12,10 @@ from cdpr.config.study import SUMMARY_METRICS, StudySpec
 TOLERANCE = 1e-9  # N: a tension this close to a limit is within it
 
 
-def metrics_of(summary: dict[str, Any], names: list[str], limits: tuple[float, float] | None) -> dict[str, Any]:
-    """The study's metrics from a session summary (None where the summary has no value)."""
+def metrics_of(summary: dict[str, Any], names: list[str],
+               limits: tuple[list[float], list[float]] | None) -> dict[str, Any]:
+    """The study's metrics from a session summary (None where the summary has no value); ``limits`` are the
+    point's (tmin, tmax) of each cable."""
     out: dict[str, Any] = {}
     tmin, tmax = summary.get("tension_min"), summary.get("tension_max")
     for name in names:
@@ -23,11 +25,17 @@ def metrics_of(summary: dict[str, Any], names: list[str], limits: tuple[float, f
         elif name == "tension_range":
             out[name] = tmax - tmin if tmin is not None and tmax is not None else None
         elif name == "tensions_within_limits":
-            if tmin is None or tmax is None or limits is None:
-                out[name] = None
-            else:
-                out[name] = int(limits[0] - TOLERANCE <= tmin and tmax <= limits[1] + TOLERANCE)
+            out[name] = _within_limits(summary, limits)
     return out
+
+
+def _within_limits(summary: dict[str, Any], limits: tuple[list[float], list[float]] | None) -> int | None:
+    """1 if every cable's tensions stayed within its limits, 0 if not, None if unknown."""
+    lows, highs = summary.get("cable_tension_min"), summary.get("cable_tension_max")
+    if lows is None or highs is None or limits is None or len(lows) != len(limits[0]):
+        return None
+    return int(all(lo - TOLERANCE <= t for lo, t in zip(limits[0], lows, strict=True))
+               and all(t <= hi + TOLERANCE for hi, t in zip(limits[1], highs, strict=True)))
 
 
 def row_columns(spec: StudySpec) -> list[str]:
