@@ -185,8 +185,10 @@ def displaced_pose(robot: Robot) -> tuple[Array, Array]:
     t, R = robot.home_position, robot.home_rotation
     if robot.mode == "point_mass":
         return t + np.array([0.2, -0.1, 0.15]), R
-    if robot.mode == "planar":
-        return t + np.array([0.1, 0.0, -0.08]), rpy_to_matrix(0.0, 0.06, 0.0) @ R
+    if robot.mode == "planar":  # along x and the plane's other axis, turned about its normal
+        xz = robot.plane == "xz"
+        shift, turn = ([0.1, 0.0, -0.08], (0.0, 0.06, 0.0)) if xz else ([0.1, -0.08, 0.0], (0.0, 0.0, 0.06))
+        return t + np.array(shift), rpy_to_matrix(*turn) @ R
     return t + np.array([0.12, -0.08, 0.1]), rpy_to_matrix(0.05, -0.03, 0.08) @ R
 
 

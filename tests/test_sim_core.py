@@ -84,6 +84,42 @@ def planar_robot() -> Robot:
     return robot_from_spec(RobotSpec.model_validate(spec), "test")
 
 
+def planar_xy_robot() -> Robot:
+    """A 4-cable plate in the horizontal x–y plane (gravity out of it, held by the joint), crossed cables."""
+    spec = _spec(
+        name="test_planar_xy",
+        mode="planar",
+        plane="xy",
+        # Ixz and Iyz are not zero: a planar joint must still give I_zz θ̈ = τ_z.
+        platform={
+            "mass": 3.0,
+            "inertia": [[0.05, 0.0, 0.01], [0.0, 0.06, 0.02], [0.01, 0.02, 0.09]],
+            "shape": {"type": "box", "size": [0.4, 0.2, 0.05]},
+        },
+        cables=[
+            {"frame": [-2.0, -1.5, 0.0], "platform": [-0.2, 0.1, 0.0]},
+            {"frame": [2.0, -1.5, 0.0], "platform": [0.2, 0.1, 0.0]},
+            {"frame": [2.0, 1.5, 0.0], "platform": [0.2, -0.1, 0.0]},
+            {"frame": [-2.0, 1.5, 0.0], "platform": [-0.2, -0.1, 0.0]},
+        ],
+        home={"position": [0.1, -0.2, 0.0]},
+        frame_box={"min": [-2.0, -1.5, -0.1], "max": [2.0, 1.5, 0.1]},
+    )
+    return robot_from_spec(RobotSpec.model_validate(spec), "test")
+
+
+def in_plane(robot: Robot, x: float, normal: float, turn: float) -> list[float]:
+    """A 3-vector of a planar robot's plane: ``x`` along x, ``normal`` along the plane's other axis (z for x–z, y
+    for x–y), ``turn`` along the normal (y for x–z, z for x–y)."""
+    return [x, 0.0, normal] if robot.plane == "xz" else [x, normal, 0.0]
+
+
+def about_normal(robot: Robot, angle: float) -> list[float]:
+    """The rotation vector of ``angle`` about a planar robot's normal."""
+    axis = np.eye(3)[robot.normal_axis]
+    return (axis * angle).tolist()
+
+
 def caroca_full_inertia() -> Robot:
     return load_robot("caroca").replace(inertia=FULL_INERTIA)
 
@@ -92,6 +128,7 @@ TEST_ROBOTS: dict[str, Callable[[], Robot]] = {
     "caroca_full_inertia": caroca_full_inertia,
     "point_mass": point_mass_robot,
     "planar": planar_robot,
+    "planar_xy": planar_xy_robot,
 }
 ROBOTS: dict[str, Callable[[], Robot]] = {
     **TEST_ROBOTS,
@@ -103,9 +140,9 @@ def moving_state(robot: Robot, spinning: bool) -> tuple[np.ndarray, np.ndarray, 
     """A pose near home and a twist (zero, or translating and spinning), valid for the robot's mode."""
     p = np.array(robot.home_position, dtype=float)
     if robot.mode == "planar":
-        p += [0.05, 0.0, -0.03]
-        R = rotvec_to_matrix([0.0, 0.2, 0.0]) @ robot.home_rotation
-        twist = np.array([0.4, 0.0, -0.3, 0.0, 1.5, 0.0])
+        p += in_plane(robot, 0.05, -0.03, 0.0)
+        R = rotvec_to_matrix(about_normal(robot, 0.2)) @ robot.home_rotation
+        twist = np.r_[in_plane(robot, 0.4, -0.3, 0.0), about_normal(robot, 1.5)]
     else:
         p += [0.05, -0.04, 0.03]
         R = rpy_to_matrix(0.1, -0.15, 0.2) @ robot.home_rotation
@@ -116,9 +153,15 @@ def moving_state(robot: Robot, spinning: bool) -> tuple[np.ndarray, np.ndarray, 
 def reference_acceleration(robot: Robot, R: np.ndarray, twist: np.ndarray, wrench: np.ndarray) -> np.ndarray:
     """[a; α] of the platform, world frame, from Newton–Euler without DART, for each mode's joint."""
     if robot.mode == "planar":
-        # The plane's own equations: the joint removes y, θ_x, θ_z, and ω ∥ y has no in-plane gyroscopic term.
-        Iyy = (R @ robot.inertia @ R.T)[1, 1]
-        return np.array([wrench[0] / robot.mass, 0.0, wrench[2] / robot.mass - G, 0.0, wrench[4] / Iyy, 0.0])
+        # The plane's own equations: the joint removes the normal axis and the two other rotations, and ω along the
+        # normal has no in-plane gyroscopic term. In the x–y plane gravity is out of the plane: the joint holds it.
+        n = robot.normal_axis
+        out = np.zeros(6)
+        for j in range(3):
+            if j != n:
+                out[j] = wrench[j] / robot.mass - (G if j == 2 else 0.0)
+        out[3 + n] = wrench[3 + n] / (R @ robot.inertia @ R.T)[n, n]
+        return out
     if robot.mode == "point_mass":
         # The cables exert no moment: the sphere spins freely (Euler's equations) while its centre moves.
         linear = forward_dynamics(robot, R, twist, wrench[:3])
@@ -135,7 +178,9 @@ def equilibrium_tensions(robot: Robot, position: np.ndarray, R: np.ndarray) -> n
     wg = np.r_[gravity_wrench(robot), np.zeros(3)] if robot.mode == "point_mass" else gravity_wrench(robot)
     sol = lsq_linear(W[rows], -wg[rows], bounds=(robot.tmin, robot.tmax), tol=1e-15, method="bvls")
     f = np.asarray(sol.x)
-    assert np.abs(W @ f + wg).max() < 1e-9  # every row, including the uncontrolled ones (they vanish)
+    # every row, including the uncontrolled ones (they vanish), but the weight out of an x–y plane (the joint's)
+    held = np.arange(6) != 2 if robot.mode == "planar" and robot.plane == "xy" else np.ones(6, dtype=bool)
+    assert np.abs(W @ f + wg)[held].max() < 1e-9
     return f
 
 
@@ -234,6 +279,13 @@ def test_bad_inputs_raise() -> None:
         planar.reset(rotation=rpy_to_matrix(0.1, 0.0, 0.0))
     with pytest.raises(ValueError, match="planar"):
         planar.reset(twist=[0.0, 0.0, 0.0, 0.0, 0.0, 0.3])
+    horizontal = PlatformSim(planar_xy_robot())
+    for bad, message in [({"position": [0.0, 0.1, 0.2]}, "x–y plane: position z must be 0"),
+                         ({"rotation": rpy_to_matrix(0.0, 0.1, 0.0)}, "rotation \\(not about z\\)"),
+                         ({"twist": [0.0, 0.0, 0.3, 0.0, 0.0, 0.0]}, "twist v_z"),
+                         ({"twist": [0.0, 0.0, 0.0, 0.2, 0.0, 0.0]}, "twist ω_x, ω_y")]:
+        with pytest.raises(ValueError, match=message):
+            horizontal.reset(**bad)
 
 
 # -- free fall ------------------------------------------------------------------------------------
@@ -339,8 +391,8 @@ def test_static_equilibrium_holds_still(name: str) -> None:
     δ ≈ 2e-6·m N (3e-4 N on CAROCA's ~1500 N of tension). So 1e-6 m and 1e-6 rad.
     """
     robot = TEST_ROBOTS[name]()
-    p0 = robot.home_position + ([0.1, 0.0, -0.05] if robot.mode == "planar" else [0.1, -0.08, -0.05])
-    tilt = [0.0, 0.04, 0.0] if robot.mode == "planar" else [0.05, -0.08, 0.1]
+    p0 = robot.home_position + (in_plane(robot, 0.1, -0.05, 0.0) if robot.mode == "planar" else [0.1, -0.08, -0.05])
+    tilt = about_normal(robot, 0.04) if robot.mode == "planar" else [0.05, -0.08, 0.1]
     R0 = rotvec_to_matrix(tilt) @ robot.home_rotation
     f = equilibrium_tensions(robot, p0, R0)
     sim = PlatformSim(robot, DT, p0, R0)
@@ -351,7 +403,8 @@ def test_static_equilibrium_holds_still(name: str) -> None:
     assert angle_between(s.rotation, R0) < 1e-6
     assert np.abs(s.twist).max() < 1e-6
     # After a second at rest the body still responds at once (DART never put it to sleep).
-    f2 = f * 1.01
+    f2 = f * 1.01  # (a horizontal planar robot's tensions are a preload: scaling them moves nothing)
+    f2[0] += 1.0
     sim.step(f2)
     kin = inverse_kinematics(robot, s.position, s.rotation)
     expected = reference_acceleration(robot, s.rotation, s.twist, kin.wrench_matrix @ f2)
@@ -390,17 +443,20 @@ def test_point_mass_never_turns_and_planar_stays_in_plane() -> None:
     np.testing.assert_array_equal(s.rotation, pm.home_rotation)  # no cable moment, no spin: exactly
     np.testing.assert_array_equal(s.twist[3:], np.zeros(3))
 
-    pl = planar_robot()
-    p0, R0, v0 = moving_state(pl, spinning=True)
-    sim = PlatformSim(pl, DT, p0, R0, v0)
-    for _ in range(300):
-        sim.step(rng.uniform(0.0, pl.tmax, pl.m))
-    s = sim.state()
-    assert s.position[1] == 0.0
-    np.testing.assert_array_equal(s.twist[[1, 3, 5]], np.zeros(3))  # no v_y, ω_x, ω_z
-    np.testing.assert_array_equal(s.rotation[1], [0.0, 1.0, 0.0])  # a rotation about y only
-    np.testing.assert_array_equal(s.rotation[:, 1], [0.0, 1.0, 0.0])
-    np.testing.assert_array_equal(s.quaternion[[0, 2]], [0.0, 0.0])
+    for pl in (planar_robot(), planar_xy_robot()):
+        p0, R0, v0 = moving_state(pl, spinning=True)
+        sim = PlatformSim(pl, DT, p0, R0, v0)
+        for _ in range(300):
+            sim.step(rng.uniform(0.0, pl.tmax, pl.m))
+        s = sim.state()
+        n = pl.normal_axis
+        assert s.position[n] == 0.0
+        assert np.linalg.norm(s.position - p0) > 1e-3  # it moved, in the plane
+        out = [n] + [3 + j for j in range(3) if j != n]  # no velocity along the normal, no turn about another axis
+        np.testing.assert_array_equal(s.twist[out], np.zeros(3))
+        np.testing.assert_array_equal(s.rotation[n], np.eye(3)[n])  # a rotation about the normal only
+        np.testing.assert_array_equal(s.rotation[:, n], np.eye(3)[n])
+        np.testing.assert_array_equal(s.quaternion[[j for j in range(3) if j != n]], [0.0, 0.0])
 
 
 # -- determinism ----------------------------------------------------------------------------------
@@ -454,9 +510,9 @@ def test_message_is_the_state_as_a_message(name: str) -> None:
 
 
 def _random_rotation(rng: np.random.Generator, robot: Robot) -> np.ndarray:
-    """Any rotation (angle up to π) for a spatial or point-mass robot, one about y for a planar one."""
+    """Any rotation (angle up to π) for a spatial or point-mass robot, one about its normal for a planar one."""
     if robot.mode == "planar":
-        return rotvec_to_matrix([0.0, rng.uniform(-np.pi, np.pi), 0.0])
+        return rotvec_to_matrix(about_normal(robot, rng.uniform(-np.pi, np.pi)))
     axis = rng.standard_normal(3)
     return rotvec_to_matrix(axis / np.linalg.norm(axis) * rng.uniform(0.0, np.pi))
 
@@ -495,9 +551,10 @@ def test_the_state_read_from_the_joint_equals_dart_world_frame_getters(name: str
         np.testing.assert_allclose(s.twist, twist, rtol=0, atol=1e-15 * np.abs(twist).max())
 
 
-@pytest.mark.parametrize("name", ["caroca_full_inertia", "planar"])
+@pytest.mark.parametrize("name", ["caroca_full_inertia", "planar", "planar_xy"])
 def test_the_joint_forces_are_the_wrench_about_the_com(name: str) -> None:
-    """A ``FreeJoint``'s generalized forces [M; F] (a planar joint's [F_z, F_x, M_y]) step the body as the
+    """A ``FreeJoint``'s generalized forces [M; F] (a planar joint's [F_z, F_x, M_y] in the x–z plane, [F_x, F_y, M_z]
+    in the x–y plane) step the body as the
     external force at the COM and torque, world frame, do (to rounding); ``World.step`` zeroes them afterwards."""
     robot = TEST_ROBOTS[name]()
     p0, R0, v0 = moving_state(robot, spinning=True)
@@ -508,10 +565,14 @@ def test_the_joint_forces_are_the_wrench_about_the_com(name: str) -> None:
     for _ in range(20):
         force, moment = rng.normal(0.0, 100.0, 3), rng.normal(0.0, 10.0, 3)
         if robot.mode == "planar":
-            force[1] = moment[0] = moment[2] = 0.0
+            n = robot.normal_axis
+            force[n] = 0.0
+            moment[[j for j in range(3) if j != n]] = 0.0
         external.body.setExtForce(force, np.zeros(3), False, True)
         external.body.setExtTorque(moment, False)
-        joint.joint.setForces([force[2], force[0], moment[1]] if robot.mode == "planar" else [*moment, *force])
+        generalized = ([force[2], force[0], moment[1]] if robot.plane == "xz" else [force[0], force[1], moment[2]]
+                       ) if robot.mode == "planar" else [*moment, *force]
+        joint.joint.setForces(generalized)
         external.world.step()
         joint.world.step()
         np.testing.assert_array_equal(joint.joint.getForces(), np.zeros(joint.joint.getNumDofs()))

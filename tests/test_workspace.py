@@ -127,7 +127,7 @@ def test_static_workspace_agrees_with_the_qp_and_an_lp(name: str) -> None:
     rng = np.random.default_rng(sum(map(ord, name)))
     positions = rng.uniform(robot.frame_min, robot.frame_max, (150, 3))
     if robot.mode == "planar":
-        positions[:, 1] = 0.0
+        positions[:, robot.normal_axis] = 0.0
     R = np.eye(3) if robot.mode != "spatial" else rpy_to_matrix(0.05, -0.1, 0.2)
     payload = 2.0
     got = wrench_feasible(robot, positions, R, payload=payload)

@@ -8,9 +8,10 @@ Model (seed paper §2.3 and §3.1)
 
   - ``spatial`` and ``point_mass``: a DART ``FreeJoint`` (6 DOF). A point-mass robot is the same free
     body with every cable attached at the centre of mass, so the cables exert no moment on it.
-  - ``planar``: a DART ``PlanarJoint`` in the ZX plane (translations along z and x, rotation about +y).
-    The constraint is exact, in joint coordinates: the body has 3 DOF, so y, and the rotations about x
-    and z, cannot change (no penalty, no drift).
+  - ``planar``: a DART ``PlanarJoint`` in the robot's plane: ZX for ``xz`` (translations along z and x,
+    rotation about +y), XY for ``xy`` (along x and y, rotation about +z; the joint holds the weight, as a
+    table would). The constraint is exact, in joint coordinates: the body has 3 DOF, so the coordinate along
+    the plane's normal, and the rotations about the in-plane axes, cannot change (no penalty, no drift).
 
 * Cables are massless, inextensible, pull-only force elements. Each step applies the tension
   ``f_i ∈ [0, tmax]`` (see :func:`clamp_tensions`) along the unit vector ``d_i`` from ``t + R b_i`` to
@@ -41,11 +42,13 @@ The body is read once per step, as its joint's generalized coordinates, which in
 the world frame (tested): a ``FreeJoint``'s positions are ``[r; t]`` (r the rotation vector of R, t the
 COM) and its velocities ``[ω; ṫ]`` (the twist at the COM, angular first: what ``getAngularVelocity`` and
 ``getLinearVelocity`` return, to the last bit); a ZX ``PlanarJoint``'s are ``[z, x, θ_y]`` and
-``[ż, ẋ, θ̇_y]``. R is the matrix of r's quaternion (DART's own R to rounding, tested). A free body's pose
-and twist are written through the ``FreeJoint``'s world-frame setters, a planar body's as its coordinates.
+``[ż, ẋ, θ̇_y]``, an XY one's ``[x, y, θ_z]`` and ``[ẋ, ẏ, θ̇_z]``. R is the matrix of r's quaternion (DART's
+own R to rounding, tested). A free body's pose and twist are written through the ``FreeJoint``'s world-frame
+setters, a planar body's as its coordinates.
 Dually, the joint's generalized forces are the wrench about the COM, world frame: ``[M; F]`` for a
 ``FreeJoint`` (the same step, to the last bit or so, as ``setExtForce`` at the COM plus ``setExtTorque``, tested),
-``[F_z, F_x, M_y]`` for the planar joint; ``World.step`` zeroes them after each step.
+``[F_z, F_x, M_y]`` for the ZX planar joint, ``[F_x, F_y, M_z]`` for the XY one; ``World.step`` zeroes them after
+each step.
 
 The cables in Plücker coordinates
 ---------------------------------
@@ -195,12 +198,13 @@ _Reading = tuple[tuple[float, ...], list[float], Array, Array]
 
 
 class PlatformBody:
-    """The platform of ``robot`` alone in a DART world: a free body (a planar joint in the x–z plane for
+    """The platform of ``robot`` alone in a DART world: a free body (a planar joint in the robot's plane for
     planar robots) with the robot's mass and inertia, gravity on, never put to sleep. The part every
     sim model shares; what pulls on the body is the model's business."""
 
     def __init__(self, robot: Robot, time_step: float) -> None:
         self.planar = robot.mode == "planar"
+        self.plane = robot.plane
         self.world = dart.simulation.World()
         self.world.setGravity(GRAVITY)
         self.world.setTimeStep(time_step)
@@ -210,7 +214,10 @@ class PlatformBody:
         skeleton = dart.dynamics.Skeleton("platform")
         if self.planar:
             joint, body = skeleton.createPlanarJointAndBodyNodePair()
-            joint.setZXPlane()  # generalized coordinates [z, x, θ about +y]
+            if self.plane == "xy":
+                joint.setXYPlane()  # generalized coordinates [x, y, θ about +z]
+            else:
+                joint.setZXPlane()  # generalized coordinates [z, x, θ about +y]
         else:
             joint, body = skeleton.createFreeJointAndBodyNodePair()
         body.setName("platform")
@@ -222,7 +229,7 @@ class PlatformBody:
         """Put the body at position ``p``, rotation ``R`` with twist ``v`` = [ṫ; ω] (world frame), with no
         external force on it."""
         if self.planar:
-            positions, velocities = planar_coordinates(p, R, v)
+            positions, velocities = planar_coordinates(p, R, v, self.plane)
             self.joint.setPositions(positions)
             self.joint.setVelocities(velocities)
         else:
@@ -276,7 +283,8 @@ class PlatformSim:
         self._minus_c = -float(robot.cable_damping)
         self._platform = PlatformBody(robot, self.dt)
         self._world, self._joint = self._platform.world, self._platform.joint
-        self._planar = self._platform.planar
+        self._planar = self._platform.planar and robot.plane == "xz"  # a ZX joint's coordinates
+        self._horizontal = self._platform.planar and robot.plane == "xy"  # an XY joint's
         self._tmax = tension_ceiling(self.robot)
         self._point_mass = robot.mode == "point_mass"
         self._shape = (robot.m,)  # of a command
@@ -316,6 +324,10 @@ class PlatformSim:
                 (z, x, ry), (dz, dx, wy) = positions, velocities
                 rx = rz = y = 0.0
                 twist = [0.0, wy, 0.0, dx, 0.0, dz]
+            elif self._horizontal:  # [x, y, θ_z] and [ẋ, ẏ, θ̇_z]
+                (x, y, rz), (dx, dy, wz) = positions, velocities
+                rx = ry = z = 0.0
+                twist = [0.0, 0.0, wz, dx, dy, 0.0]
             else:  # [r; t] and [ω; ṫ]
                 rx, ry, rz, x, y, z = positions
                 twist = velocities
@@ -379,7 +391,8 @@ class PlatformSim:
         mx, my, mz = mx - (y * fz - z * fy), my - (z * fx - x * fz), mz - (x * fy - y * fx)  # about the COM
         if self._point_mass:  # cables at the COM: no moment, exactly (not the rounding error of M_O − t × F)
             mx = my = mz = 0.0
-        self._joint.setForces((fz, fx, my) if self._planar else (mx, my, mz, fx, fy, fz))
+        self._joint.setForces((fz, fx, my) if self._planar else (fx, fy, mz) if self._horizontal
+                              else (mx, my, mz, fx, fy, fz))
         self._world.step()  # semi-implicit Euler; zeroes the joint's forces afterwards
         self._now = None
         self.step_count += 1
@@ -432,24 +445,36 @@ def cable_line_map(frame_points: ArrayLike, platform_points: ArrayLike) -> Array
     return out
 
 
-def planar_coordinates(p: Array, R: Array, v: Array) -> tuple[Array, Array]:
-    """A ZX ``PlanarJoint``'s positions ``[z, x, θ_y]`` and velocities ``[ż, ẋ, θ̇_y]`` for a pose and twist.
+def planar_coordinates(p: Array, R: Array, v: Array, plane: str = "xz") -> tuple[Array, Array]:
+    """A ``PlanarJoint``'s positions and velocities for a pose and twist: ``[z, x, θ_y]`` and ``[ż, ẋ, θ̇_y]``
+    in the ZX plane (``xz``), ``[x, y, θ_z]`` and ``[ẋ, ẏ, θ̇_z]`` in the XY plane (``xy``).
 
-    Raises ``ValueError`` if the pose or the twist leaves the x–z plane by more than ``_PLANAR_TOL``.
+    Raises ``ValueError`` if the pose or the twist leaves the plane by more than ``_PLANAR_TOL``.
     """
-    theta = float(np.arctan2(R[0, 2], R[0, 0]))  # R = Ry(θ) = [[c, 0, s], [0, 1, 0], [−s, 0, c]]
-    c, s = np.cos(theta), np.sin(theta)
-    Ry = np.array([[c, 0.0, s], [0.0, 1.0, 0.0], [-s, 0.0, c]])
+    if plane == "xy":
+        theta = float(np.arctan2(R[1, 0], R[0, 0]))  # R = Rz(θ) = [[c, −s, 0], [s, c, 0], [0, 0, 1]]
+        c, s = np.cos(theta), np.sin(theta)
+        about = np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
+        normal, in_plane, turn = 2, (0, 1), 5
+    else:
+        theta = float(np.arctan2(R[0, 2], R[0, 0]))  # R = Ry(θ) = [[c, 0, s], [0, 1, 0], [−s, 0, c]]
+        c, s = np.cos(theta), np.sin(theta)
+        about = np.array([[c, 0.0, s], [0.0, 1.0, 0.0], [-s, 0.0, c]])
+        normal, in_plane, turn = 1, (2, 0), 4
+    axis = "xyz"[normal]
+    others = [f"ω_{'xyz'[j]}" for j in range(3) if j != normal]
     off_plane = {
-        "position y": abs(p[1]),
-        "rotation (not about y)": float(np.abs(R - Ry).max()),
-        "twist v_y": abs(v[1]),
-        "twist ω_x, ω_z": max(abs(v[3]), abs(v[5])),
+        f"position {axis}": abs(p[normal]),
+        f"rotation (not about {axis})": float(np.abs(R - about).max()),
+        f"twist v_{axis}": abs(v[normal]),
+        f"twist {', '.join(others)}": max(abs(v[3 + j]) for j in range(3) if j != normal),
     }
     for what, err in off_plane.items():
         if err > _PLANAR_TOL:
-            raise ValueError(f"a planar robot moves in the x–z plane: {what} must be 0 (got {err:.3g})")
-    return np.array([p[2], p[0], theta]), np.array([v[2], v[0], v[4]])
+            raise ValueError(f"a planar robot moves in the {plane[0]}–{plane[1]} plane: {what} must be 0 "
+                             f"(got {err:.3g})")
+    a, b = in_plane
+    return np.array([p[a], p[b], theta]), np.array([v[a], v[b], v[turn]])
 
 
 def _vector(x: ArrayLike, n: int, what: str) -> Array:

@@ -21,7 +21,7 @@ from pydantic import (
 from cdpr.config.loading import Strict, parse_model, read_yaml, resolve, shipped_names
 from cdpr.errors import InputError
 from cdpr.mechanics.kinematics import check_robot
-from cdpr.mechanics.robot import Mode, Robot, Shape, frozen_array
+from cdpr.mechanics.robot import Mode, Plane, Robot, Shape, frozen_array
 from cdpr.mechanics.rotation import rpy_to_matrix
 from cdpr.mechanics.workspace import wrench_feasible
 
@@ -44,8 +44,9 @@ class ShapeSpec(Strict):
 
 class PlatformSpec(Strict):
     mass: FiniteFloat
-    inertia: list[FiniteFloat] | list[list[FiniteFloat]] = Field(
-        description="principal moments [Ixx, Iyy, Izz] or a full symmetric 3×3 matrix, about the centre of mass"
+    inertia: list[FiniteFloat] | list[list[FiniteFloat]] | FiniteFloat = Field(
+        description="principal moments [Ixx, Iyy, Izz] or a full symmetric 3×3 matrix, about the centre of mass; "
+                    "a planar robot may give one number, its moment about the plane's normal"
     )
     shape: ShapeSpec
 
@@ -58,8 +59,12 @@ class PlatformSpec(Strict):
 
     @field_validator("inertia")
     @classmethod
-    def _inertia_spd(cls, v: list[float] | list[list[float]]) -> list[float] | list[list[float]]:
+    def _inertia_spd(cls, v: float | list[float] | list[list[float]]) -> float | list[float] | list[list[float]]:
         J = np.asarray(v, dtype=float)
+        if J.shape == ():
+            if J <= 0.0:
+                raise ValueError(f"must be > 0 (got {v})")
+            return v
         if J.shape == (3,):
             J = np.diag(J)
         if J.shape != (3, 3):
@@ -119,12 +124,23 @@ class RobotSpec(Strict):
     description: str = ""
     source: str = Field(description="where the numbers come from")
     mode: Mode = "spatial"
+    plane: Plane | None = Field(None, description="a planar robot's plane: xz (vertical, the default) or xy "
+                                                  "(horizontal, gravity out of the plane)")
     platform: PlatformSpec
     limits: CableLimitsSpec
     cables: list[CableSpec] = Field(min_length=1)
     damping: DampingSpec = Field(default_factory=lambda: DampingSpec())
     home: HomeSpec
     frame_box: FrameBoxSpec
+
+    @model_validator(mode="after")
+    def _plane_and_inertia_of_a_planar_robot(self) -> RobotSpec:
+        if self.plane is not None and self.mode != "planar":
+            raise ValueError(f"plane: only a planar robot has a plane (mode is {self.mode})")
+        if np.ndim(self.platform.inertia) == 0 and self.mode != "planar":
+            raise ValueError("platform.inertia: one number is a planar robot's moment about its plane's normal; "
+                             "give [Ixx, Iyy, Izz] or a 3×3 matrix")
+        return self
 
     def cable_limits(self, name: Literal["tmin", "tmax", "max_length"]) -> list[float]:
         """One limit per cable: the cable's own, else the robot's ``limits``."""
@@ -135,7 +151,9 @@ class RobotSpec(Strict):
 def robot_from_spec(spec: RobotSpec, where: str) -> Robot:
     """Build and check a Robot; ``where`` names the file in errors."""
     inertia = np.asarray(spec.platform.inertia, dtype=float)
-    if inertia.shape == (3,):
+    if inertia.shape == ():  # a planar robot's one moment: the other axes cannot turn, any positive moment serves
+        inertia = np.eye(3) * inertia
+    elif inertia.shape == (3,):
         inertia = np.diag(inertia)
     lo, hi = spec.cable_limits("tmin"), spec.cable_limits("tmax")
     for i, (low, high) in enumerate(zip(lo, hi, strict=True)):
@@ -164,6 +182,7 @@ def robot_from_spec(spec: RobotSpec, where: str) -> Robot:
         home_rotation=frozen_array(rpy_to_matrix(*spec.home.rpy)),
         frame_min=frozen_array(spec.frame_box.min),
         frame_max=frozen_array(spec.frame_box.max),
+        plane=spec.plane or "xz",
     )
     check_robot(robot, where)
     check_home_held(robot, where, spec.home.rpy)

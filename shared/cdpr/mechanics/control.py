@@ -11,8 +11,8 @@ in this project's sign convention, see :mod:`cdpr.mechanics.kinematics`) is
     W f = M ẍ + C ẋ − w_g
 
 ``3dof`` is the paper's own experiment: only the position is controlled (force rows of W), the
-platform's orientation is left free. Point-mass robots always use it; planar robots control x, z and
-the rotation about y.
+platform's orientation is left free. Point-mass robots always use it; planar robots control their plane's
+two coordinates and the rotation about its normal (x, z and about y; or x, y and about z).
 """
 
 from __future__ import annotations
@@ -49,7 +49,10 @@ class Gains:
 
 
 def controlled_rows(robot: Robot, variant: Variant) -> tuple[int, ...]:
-    """Rows of the 6×m wrench matrix (and of the 6-vectors) that ``variant`` controls on ``robot``."""
+    """Rows of the 6×m wrench matrix (and of the 6-vectors) that ``variant`` controls on ``robot`` (a planar
+    robot's ``3dof``: the forces in its plane)."""
+    if robot.mode == "planar" and variant == "3dof":
+        return tuple(r for r in robot.controlled_rows if r < 3)
     if variant == "3dof" or robot.mode == "point_mass":
         return (0, 1, 2)
     return robot.controlled_rows

@@ -131,24 +131,29 @@ def forward_kinematics(
 
     With more cables than DOF the lengths over-determine the pose; the result is the least-squares
     pose and ``residual`` says how far the lengths are from consistent. Point-mass robots solve for the
-    position only; planar robots for x, z and the rotation about y.
+    position only; planar robots for their plane's two coordinates and the rotation about its normal.
     """
     target = np.asarray(lengths, dtype=float)
     p0 = np.asarray(robot.home_position if guess_position is None else guess_position, dtype=float)
     R0 = np.asarray(robot.home_rotation if guess_rotation is None else guess_rotation, dtype=float)
 
+    normal = robot.normal_axis
+    in_plane = [j for j in range(3) if j != normal]
+
     def unpack(x: Array) -> tuple[Array, Array]:
         if robot.mode == "point_mass":
             return x, R0
         if robot.mode == "planar":
-            return np.array([x[0], p0[1], x[1]]), rotvec_to_matrix([0.0, x[2], 0.0]) @ R0
+            p = p0.copy()
+            p[in_plane] = x[:2]
+            return p, rotvec_to_matrix(np.eye(3)[normal] * x[2]) @ R0
         return x[:3], rotvec_to_matrix(x[3:]) @ R0
 
     def residual(x: Array) -> Array:
         p, R = unpack(x)
         return cable_kinematics(robot.frame_points, robot.platform_points, p, R).lengths - target
 
-    x0 = {"point_mass": p0.copy(), "planar": np.array([p0[0], p0[2], 0.0]), "spatial": np.r_[p0, 0.0, 0.0, 0.0]}[
+    x0 = {"point_mass": p0.copy(), "planar": np.r_[p0[in_plane], 0.0], "spatial": np.r_[p0, 0.0, 0.0, 0.0]}[
         robot.mode
     ]
     from scipy.optimize import least_squares  # only forward kinematics needs scipy
@@ -169,8 +174,10 @@ def check_robot(robot: Robot, where: str) -> None:
         raise InputError(f"{where}: cables: a point_mass robot needs every platform point at [0, 0, 0]")
     if robot.mode == "planar":
         pts = np.vstack([robot.frame_points, robot.platform_points, robot.home_position[None, :]])
-        if np.abs(pts[:, 1]).max() > 1e-12:
-            raise InputError(f"{where}: cables: a planar robot lives in the x–z plane: every y must be 0")
+        axis = "xyz"[robot.normal_axis]
+        if np.abs(pts[:, robot.normal_axis]).max() > 1e-12:
+            raise InputError(f"{where}: cables: a planar robot lives in the {robot.plane[0]}–{robot.plane[1]} plane: "
+                             f"every {axis} must be 0")
     ik = inverse_kinematics(robot, robot.home_position, robot.home_rotation)
     if np.any(ik.lengths < 1e-9):
         i = int(np.argmin(ik.lengths))

@@ -10,8 +10,10 @@ Three modes:
 
 * ``spatial``: 6-DOF platform (x, y, z, and orientation).
 * ``point_mass``: all cables meet at the centre of mass; 3 translational DOF are controlled.
-* ``planar``: the platform moves in the vertical x–z plane (x, z, rotation about y); every point has
-  y = 0. Gravity acts along −z in every mode.
+* ``planar``: the platform moves in a plane through the origin, every point in it: ``plane`` ``xz``, the
+  vertical x–z plane (x, z, rotation about y; gravity in the plane), or ``xy``, the horizontal x–y plane (x,
+  y, rotation about z; gravity out of the plane, held by whatever supports the platform, as on a table).
+  Gravity acts along −z in every mode.
 """
 
 from __future__ import annotations
@@ -27,12 +29,17 @@ from cdpr.errors import InputError
 from cdpr.mechanics.rotation import Array
 
 Mode = Literal["spatial", "point_mass", "planar"]
+Plane = Literal["xz", "xy"]
 GRAVITY = np.array([0.0, 0.0, -9.81])
 
 
 DOF = {"spatial": 6, "point_mass": 3, "planar": 3}
 # Rows of the 6×m wrench matrix that the controller acts on, per mode: [fx fy fz mx my mz].
 CONTROLLED_ROWS = {"spatial": (0, 1, 2, 3, 4, 5), "point_mass": (0, 1, 2), "planar": (0, 2, 4)}
+# A planar robot's plane: its rows of W, and the axis normal to it (the rotation axis; every point's coordinate
+# along it is 0).
+PLANE_ROWS: dict[str, tuple[int, ...]] = {"xz": (0, 2, 4), "xy": (0, 1, 5)}
+PLANE_NORMAL = {"xz": 1, "xy": 2}
 
 
 def frozen_array(a: ArrayLike) -> Array:
@@ -82,6 +89,7 @@ class Robot:
     home_rotation: Array  # (3, 3)
     frame_min: Array
     frame_max: Array
+    plane: Plane = "xz"  # a planar robot's plane (ignored in the other modes)
 
     def __post_init__(self) -> None:
         m = self.m
@@ -121,7 +129,12 @@ class Robot:
 
     @property
     def controlled_rows(self) -> tuple[int, ...]:
-        return CONTROLLED_ROWS[self.mode]
+        return PLANE_ROWS[self.plane] if self.mode == "planar" else CONTROLLED_ROWS[self.mode]
+
+    @property
+    def normal_axis(self) -> int:
+        """A planar robot's axis normal to its plane: 1 (y) for x–z, 2 (z) for x–y."""
+        return PLANE_NORMAL[self.plane]
 
     def replace(self, **changes: Any) -> Robot:
         """A copy with ``changes``; with another number of cables, limits the same for every cable carry over
@@ -154,6 +167,7 @@ class Robot:
             "description": self.description,
             "source": self.source,
             "mode": self.mode,
+            **({"plane": self.plane} if self.mode == "planar" else {}),
             "cables": self.m,
             "dof": self.dof,
             "mass": self.mass,

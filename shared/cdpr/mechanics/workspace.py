@@ -238,14 +238,14 @@ class Workspace:
 def grid_points(robot: Robot, step: float) -> tuple[Array, tuple[int, int, int], Array]:
     """Cell-centred grid over the frame box: along each axis ⌈L/step⌉ cells of size L/⌈L/step⌉ ≤ step.
 
-    Planar robots are sampled in their plane only (y = 0). Returns (points (n, 3), shape, spacing).
+    Planar robots are sampled in their plane only (0 along its normal). Returns (points (n, 3), shape, spacing).
     """
     if not (math.isfinite(step) and step > 0.0):
         raise ValueError(f"step must be a positive length (got {step})")
     lo, hi = np.asarray(robot.frame_min, dtype=float), np.asarray(robot.frame_max, dtype=float)
     axes, spacing = [], np.zeros(3)
     for j in range(3):
-        if robot.mode == "planar" and j == 1:
+        if robot.mode == "planar" and j == robot.normal_axis:
             axes.append(np.zeros(1))
             continue
         count = max(1, math.ceil((hi[j] - lo[j]) / step - 1e-9))

@@ -18,7 +18,7 @@ from cdpr.errors import InputError
 from cdpr.mechanics.camera import Camera, camera_from_spec
 from cdpr.mechanics.control import Gains, Variant, controlled_rows
 from cdpr.mechanics.kinematics import check_robot
-from cdpr.mechanics.robot import Robot, Shape
+from cdpr.mechanics.robot import PLANE_ROWS, Robot, Shape
 from cdpr.protocol.messages import PROTOCOL_VERSION, ProtocolError, unpack
 
 if TYPE_CHECKING:
@@ -99,6 +99,7 @@ def robot_from_summary(summary: dict[str, Any]) -> Robot:
             home_rotation=_readonly(summary["home"]["rotation"], (3, 3)),
             frame_min=_readonly(a.min(axis=0)),
             frame_max=_readonly(a.max(axis=0)),
+            plane=summary.get("plane", "xz"),
         )
     except ProtocolError:
         raise
@@ -108,6 +109,8 @@ def robot_from_summary(summary: dict[str, Any]) -> Robot:
         raise ProtocolError(f"{where}: {exc}") from None
     if robot.mode not in ("spatial", "point_mass", "planar"):
         raise ProtocolError(f"{where}.mode: unknown mode {robot.mode!r}")
+    if robot.plane not in PLANE_ROWS:
+        raise ProtocolError(f"{where}.plane: unknown plane {robot.plane!r} (xz or xy)")
     try:
         check_robot(robot, where)
     except InputError as exc:
