@@ -7,7 +7,7 @@ exit code 2. The file format is documented in the shipped robots (``shared/cdpr/
 from __future__ import annotations
 
 from pathlib import Path
-from typing import Annotated, Literal
+from typing import Annotated, Any, Literal
 
 import numpy as np
 from pydantic import (
@@ -49,6 +49,10 @@ class PlatformSpec(Strict):
                     "a planar robot may give one number, its moment about the plane's normal"
     )
     shape: ShapeSpec
+    com: Vec3 = Field(default_factory=lambda: [0.0, 0.0, 0.0],
+                      description="the centre of mass in the platform frame, m: that frame's origin need not be the "
+                                  "COM; the cables' platform points and the home pose are in that frame, the inertia "
+                                  "about the COM (axes of that frame)")
 
     @field_validator("mass")
     @classmethod
@@ -128,10 +132,32 @@ class RobotSpec(Strict):
                                                   "(horizontal, gravity out of the plane)")
     platform: PlatformSpec
     limits: CableLimitsSpec
-    cables: list[CableSpec] = Field(min_length=1)
+    cables: list[CableSpec] = Field(min_length=1, description="the robot's cables (its default cable set)")
+    cable_set: str = Field("default", min_length=1, description="the name of the set ``cables`` is")
+    cable_sets: dict[str, Annotated[list[CableSpec], Field(min_length=1)]] = Field(
+        default_factory=dict, description="other sets of cables on the same frame and platform, by name "
+                                          "(``--cable-set NAME``, a scenario's ``cable_set``)")
     damping: DampingSpec = Field(default_factory=lambda: DampingSpec())
     home: HomeSpec
     frame_box: FrameBoxSpec
+
+    @model_validator(mode="after")
+    def _set_names_differ(self) -> RobotSpec:
+        if self.cable_set in self.cable_sets:
+            raise ValueError(f"cable_sets.{self.cable_set}: the name of the default set (cable_set); "
+                             "give the other sets other names")
+        return self
+
+    def set_names(self) -> list[str]:
+        return [self.cable_set, *self.cable_sets]
+
+    def with_cable_set(self, name: str | None) -> RobotSpec:
+        """The spec whose ``cables`` are the set ``name`` (None: the default one)."""
+        if name is None or name == self.cable_set:
+            return self
+        if name not in self.cable_sets:
+            raise InputError(f"cable_set: no cable set {name!r} (this robot has: {', '.join(self.set_names())})")
+        return self.model_copy(update={"cables": self.cable_sets[name], "cable_set": name})
 
     @model_validator(mode="after")
     def _plane_and_inertia_of_a_planar_robot(self) -> RobotSpec:
@@ -161,7 +187,9 @@ def robot_from_spec(spec: RobotSpec, where: str) -> Robot:
             raise InputError(f"{where}: cables.{i}: tmin ({low}) must not exceed tmax ({high}) (limits.tmin/tmax "
                              "where the cable gives none)")
     a = np.array([c.frame for c in spec.cables])
-    b = np.array([c.platform for c in spec.cables])
+    com = np.array(spec.platform.com, dtype=float)
+    b = np.array([c.platform for c in spec.cables]) - com  # from the COM, the origin of the robot's model
+    home_rotation = rpy_to_matrix(*spec.home.rpy)
     robot = Robot(
         name=spec.name,
         description=spec.description,
@@ -178,23 +206,25 @@ def robot_from_spec(spec: RobotSpec, where: str) -> Robot:
         max_speed=spec.limits.max_speed,
         cable_damping=spec.damping.cable,
         passive_damping=spec.damping.passive,
-        home_position=frozen_array(spec.home.position),
-        home_rotation=frozen_array(rpy_to_matrix(*spec.home.rpy)),
+        home_position=frozen_array(np.asarray(spec.home.position) + home_rotation @ com),
+        home_rotation=frozen_array(home_rotation),
         frame_min=frozen_array(spec.frame_box.min),
         frame_max=frozen_array(spec.frame_box.max),
         plane=spec.plane or "xz",
+        cable_set=spec.cable_set,
+        com_offset=frozen_array(com),
     )
     check_robot(robot, where)
-    check_home_held(robot, where, spec.home.rpy)
+    check_home_held(robot, where, spec.home.position, spec.home.rpy)
     return robot
 
 
-def check_home_held(robot: Robot, where: str, rpy: list[float]) -> None:
+def check_home_held(robot: Robot, where: str, position: list[float], rpy: list[float]) -> None:
     """An :class:`InputError` unless tensions within the robot's limits hold its platform at rest at its home pose
     (the pose every session starts from)."""
     if wrench_feasible(robot, robot.home_position[None, :], robot.home_rotation)[0]:
         return
-    pos = ", ".join(f"{x:g}" for x in robot.home_position)
+    pos = ", ".join(f"{x:g}" for x in position)  # as the file gives it (the platform frame's)
     angles = ", ".join(f"{x:g}" for x in rpy)
     which = "limits.tmin, limits.tmax" if robot.uniform_limits else "per cable: cables.i.tmin/tmax, else limits"
     raise InputError(
@@ -204,11 +234,26 @@ def check_home_held(robot: Robot, where: str, rpy: list[float]) -> None:
     )
 
 
-def load_robot(name_or_path: str | Path) -> Robot:
-    """A shipped robot name (``caroca``) or a path to a robot YAML file → a validated Robot."""
+def load_robot(name_or_path: str | Path, cable_set: str | None = None) -> Robot:
+    """A shipped robot name (``caroca``) or a path to a robot YAML file → a validated Robot, with its cable set
+    ``cable_set`` (None: the file's ``cables``). Every set of the file is checked."""
     path = resolve(name_or_path, "robots", "robot")
-    spec = parse_model(RobotSpec, read_yaml(path), path)
-    return robot_from_spec(spec, str(path))
+    return robot_from_data(read_yaml(path), path, cable_set)
+
+
+def robot_from_data(data: dict[str, Any], where: str | Path, cable_set: str | None = None) -> Robot:
+    """A robot file's content → the Robot of its cable set ``cable_set`` (None: its ``cables``), every set of
+    it checked; errors start with ``where``."""
+    spec = parse_model(RobotSpec, data, where)
+    try:
+        chosen = spec.with_cable_set(cable_set)
+    except InputError as exc:
+        raise InputError(f"{where}: {exc}") from None
+    for name in spec.set_names():
+        if name != chosen.cable_set:
+            robot_from_spec(spec.with_cable_set(name), f"{where}: cable_sets.{name}")
+    place = str(where) if chosen.cable_set == spec.cable_set else f"{where}: cable_sets.{chosen.cable_set}"
+    return robot_from_spec(chosen, place)
 
 
 def shipped_robots() -> list[str]:

@@ -31,7 +31,7 @@ from cdpr.mechanics.control import Gains, Variant
 from cdpr.mechanics.outputs import CommandKind
 from cdpr.mechanics.robot import GRAVITY, Robot
 from cdpr.mechanics.rotation import rpy_to_matrix
-from cdpr.mechanics.trajectory import Trajectory
+from cdpr.mechanics.trajectory import PlatformPoint, Trajectory
 
 
 class PlatformOverride(Strict):
@@ -287,6 +287,7 @@ class ScenarioSpec(Strict):
     name: str
     description: str = ""
     robot: str
+    cable_set: str | None = Field(None, description="which of the robot file's cable sets (default: its cables)")
     platform: PlatformOverride = Field(default_factory=lambda: PlatformOverride())
     limits: LimitsOverride = Field(default_factory=lambda: LimitsOverride())
     dt: PositiveFloat = 0.001
@@ -376,7 +377,7 @@ def scenario_from_spec(spec: ScenarioSpec, where: str, base_dir: Path | None = N
     if base_dir is not None and robot_ref.endswith((".yaml", ".yml")) and not Path(robot_ref).is_absolute():
         robot_ref = str(base_dir / robot_ref)
     try:
-        robot = load_robot(robot_ref)
+        robot = load_robot(robot_ref, spec.cable_set)
     except InputError as exc:
         raise InputError(f"{where}: robot: {exc}") from None
     if spec.platform.mass is not None:
@@ -395,6 +396,8 @@ def scenario_from_spec(spec: ScenarioSpec, where: str, base_dir: Path | None = N
                          f"cable), got {len(bias)}")
     try:
         trajectory = spec.trajectory.build()
+        if np.any(robot.com_offset != 0.0):  # waypoints of the platform frame: the COM follows its own path
+            trajectory = PlatformPoint(trajectory, robot.com_offset)
     except ValueError as exc:
         raise InputError(f"{where}: trajectory: {exc}") from None
     if "workspace" in checks:
@@ -410,8 +413,8 @@ def scenario_from_spec(spec: ScenarioSpec, where: str, base_dir: Path | None = N
             raise InputError(f"{where}: controller.tda.options: {str(exc).splitlines()[0]}") from None
     duration = spec.duration if spec.duration is not None else trajectory.duration + 1.0
     if spec.initial is not None:
-        p0 = np.array(spec.initial.position, dtype=float)
         R0 = rpy_to_matrix(*spec.initial.rpy)
+        p0 = robot.com_pose(spec.initial.position, R0)  # the platform frame's pose → the COM's
     else:
         first = trajectory.sample(0.0)
         p0, R0 = first.position.copy(), first.rotation.copy()

@@ -90,14 +90,23 @@ class Robot:
     frame_min: Array
     frame_max: Array
     plane: Plane = "xz"  # a planar robot's plane (ignored in the other modes)
+    cable_set: str = "default"  # the name of the robot file's set these cables are
+    # The COM in the platform frame of the robot file (whose origin need not be the COM): every point, pose and
+    # motion here is of the COM; a pose given for that frame is the COM's after :meth:`com_pose`.
+    com_offset: Array = dataclasses.field(default_factory=lambda: frozen_array(np.zeros(3)))
 
     def __post_init__(self) -> None:
+        object.__setattr__(self, "com_offset", frozen_array(np.broadcast_to(self.com_offset, (3,))))
         m = self.m
         for name in ("tmin", "tmax", "max_length"):
             value = np.asarray(getattr(self, name), dtype=float)
             if value.shape not in ((), (m,)):
                 raise InputError(f"{name}: expected one number or {m} (one per cable), got shape {value.shape}")
             object.__setattr__(self, name, frozen_array(np.broadcast_to(value, (m,))))
+
+    def com_pose(self, position: ArrayLike, R: ArrayLike) -> Array:
+        """The COM's position when the platform frame of the robot file is at (position, R): position + R c."""
+        return np.asarray(position, dtype=float) + np.asarray(R, dtype=float) @ self.com_offset
 
     @property
     def uniform_limits(self) -> bool:
@@ -168,6 +177,8 @@ class Robot:
             "source": self.source,
             "mode": self.mode,
             **({"plane": self.plane} if self.mode == "planar" else {}),
+            "cable_set": self.cable_set,
+            "com_offset": self.com_offset.tolist(),
             "cables": self.m,
             "dof": self.dof,
             "mass": self.mass,

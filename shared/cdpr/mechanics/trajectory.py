@@ -102,6 +102,31 @@ class Trajectory(ABC):
         """(time, position) of each waypoint, in time order, for drawing and checks."""
 
 
+class PlatformPoint(Trajectory):
+    """The motion of the point ``offset`` (platform frame) of a platform whose frame follows ``frame``: where a
+    robot's centre of mass goes when its trajectory is given for a platform frame whose origin is not the COM.
+
+    p = p_f + R c, v = v_f + ω × R c, a = a_f + α × R c + ω × (ω × R c); the rotation, ω and α are the frame's.
+    """
+
+    def __init__(self, frame: Trajectory, offset: ArrayLike) -> None:
+        self.frame = frame
+        self.offset = readonly(_as_vec3(offset, "offset"))
+        self.duration = frame.duration
+
+    def sample(self, t: float) -> Setpoint:
+        s = self.frame.sample(t)
+        r = s.rotation @ self.offset  # R c, world frame
+        w, alpha = s.twist[3:], s.accel[3:]
+        w_r = np.cross(w, r)
+        twist = np.r_[s.twist[:3] + w_r, w]
+        accel = np.r_[s.accel[:3] + np.cross(alpha, r) + np.cross(w, w_r), alpha]
+        return Setpoint(readonly(s.position + r), s.rotation, readonly(twist), readonly(accel))
+
+    def waypoints(self) -> list[tuple[float, Array]]:
+        return [(t, self.sample(t).position.copy()) for t, _ in self.frame.waypoints()]
+
+
 def _as_points(values: ArrayLike, n: int | None, name: str) -> Array:
     """``values`` as an (n, 3) finite float array, or ValueError naming ``name``."""
     try:

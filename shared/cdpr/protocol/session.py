@@ -100,6 +100,8 @@ def robot_from_summary(summary: dict[str, Any]) -> Robot:
             frame_min=_readonly(a.min(axis=0)),
             frame_max=_readonly(a.max(axis=0)),
             plane=summary.get("plane", "xz"),
+            cable_set=str(summary.get("cable_set", "default")),
+            com_offset=_readonly(summary.get("com_offset", [0.0, 0.0, 0.0]), (3,)),
         )
     except ProtocolError:
         raise

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import sys
+from pathlib import Path
 from typing import Any
 
 import click
@@ -19,7 +20,9 @@ INFEASIBLE_EXIT = 3  # cdpr tda: no admissible tensions produce the wrench (docu
 
 @cli.command()
 @click.argument("robot", required=False)
-def robots(robot: str | None) -> None:
+@click.option("--cable-set", "cable_set", default=None, metavar="NAME",
+              help="which of the robot file's cable sets (default: its cables)")
+def robots(robot: str | None, cable_set: str | None) -> None:
     """List the shipped robots, or print the summary of ROBOT (a name or a YAML path)."""
     from cdpr.config.robot import load_robot, shipped_robots
 
@@ -30,13 +33,13 @@ def robots(robot: str | None) -> None:
             out.append({"name": name, "mode": r.mode, "cables": r.m, "mass": r.mass, "description": r.description})
         emit(out)
     else:
-        emit(load_robot(robot).summary())
+        emit(load_robot(robot, cable_set).summary())
 
 
 _ANGLES_HELP = ("the convention of three angles, rad: rpy = roll pitch yaw, R = Rz(yaw)·Ry(pitch)·Rx(roll) (ROS/URDF); "
                 "xyz = Euler XYZ, R = Rx(a)·Ry(b)·Rz(c) (CASPR)")
-_POSE = ("--pose", "X Y Z [A B C]", "the platform's pose: position, m, and three angles, rad, in --angles' convention "
-         "(default roll pitch yaw; none: no rotation)  [required]")
+_POSE = ("--pose", "X Y Z [A B C]", "the platform frame's pose: position, m, and three angles, rad, in --angles' "
+         "convention (default roll pitch yaw; none: no rotation)  [required]")
 _WRENCH = ("--wrench", "FX FY FZ MX MY MZ", "the wrench the cables must exert on the platform: N and N·m, world "
            "frame, moment about the centre of mass")
 
@@ -54,6 +57,11 @@ def _numbers_command(*flags: tuple[str, str, str]) -> type[click.Command]:
                 formatter.write_dl(rows)
 
     return NumbersCommand
+
+
+def _cable_set_option() -> Any:
+    return click.option("--cable-set", "cable_set", default=None, metavar="NAME",
+                        help="which of the robot file's cable sets (default: its cables)")
 
 
 def _angle_convention(_ctx: click.Context, _param: click.Parameter, value: str) -> str:
@@ -83,8 +91,9 @@ def _pose(values: tuple[float, ...], angles: str = "rpy") -> tuple[np.ndarray, n
 @cli.command(cls=_numbers_command(_POSE), context_settings={"ignore_unknown_options": True, "allow_extra_args": True})
 @click.argument("robot")
 @_angles_option()
+@_cable_set_option()
 @click.pass_context
-def ik(ctx: click.Context, robot: str, angles: str) -> None:
+def ik(ctx: click.Context, robot: str, angles: str, cable_set: str | None) -> None:
     """Inverse kinematics of ROBOT at --pose X Y Z [A B C]: cable lengths, directions, wrench matrix (JSON)."""
     from cdpr.config.robot import load_robot
     from cdpr.mechanics.kinematics import inverse_kinematics
@@ -92,9 +101,9 @@ def ik(ctx: click.Context, robot: str, angles: str) -> None:
     groups = _split_numbers(list(ctx.args), ("--pose",))
     if "--pose" not in groups:
         raise InputError("--pose X Y Z [A B C] is required")
-    r = load_robot(robot)
+    r = load_robot(robot, cable_set)
     position, R = _pose(_numbers("--pose", tuple(groups["--pose"])), angles)
-    k = inverse_kinematics(r, position, R)
+    k = inverse_kinematics(r, r.com_pose(position, R), R)
     emit({"lengths": k.lengths.tolist(), "directions": k.directions.tolist(),
            "wrench_matrix": k.wrench_matrix.tolist()})
 
@@ -133,9 +142,10 @@ def _split_numbers(args: list[str], flags: tuple[str, ...]) -> dict[str, list[st
 @click.option("--method", default="qp", show_default=True, help="qp | closed-form | improved-closed-form | continuity")
 @click.option("--tmin", type=float, default=None, help="N (default: the robot's)")
 @click.option("--tmax", type=float, default=None, help="N (default: the robot's)")
+@_cable_set_option()
 @click.pass_context
 def tda(ctx: click.Context, robot: str, angles: str, static: bool, payload: float, method: str,
-        tmin: float | None, tmax: float | None) -> None:
+        tmin: float | None, tmax: float | None, cable_set: str | None) -> None:
     """Tension distribution of ROBOT at --pose X Y Z [A B C], for --static or --wrench FX FY FZ MX MY MZ.
 
     Prints the tensions as JSON. Exit code 0 when they produce the wrench within the limits, 3 when no
@@ -154,11 +164,11 @@ def tda(ctx: click.Context, robot: str, angles: str, static: bool, payload: floa
         raise InputError("give exactly one of --static or --wrench FX FY FZ MX MY MZ")
     if method not in METHODS:
         raise InputError(f"--method: unknown method {method!r} (known: {', '.join(sorted(METHODS))})")
-    r = load_robot(robot).with_payload(payload)
+    r = load_robot(robot, cable_set).with_payload(payload)
     lo, hi = _limits(r, tmin, tmax)
     position, R = _pose(_numbers("--pose", tuple(groups["--pose"])), angles)
     rows = list(r.controlled_rows)
-    W = inverse_kinematics(r, position, R).wrench_matrix[rows]
+    W = inverse_kinematics(r, r.com_pose(position, R), R).wrench_matrix[rows]
     if static:
         w = -gravity_wrench(r)
         w = w if r.mode == "point_mass" else w[rows]
@@ -216,9 +226,10 @@ def _number_or_list(values: np.ndarray) -> float | list[float]:
 @click.option("--tmax", type=float, default=None, help="N (default: the robot's)")
 @click.option("--rrd", type=click.Path(), default=None, help="write the points to this .rrd file")
 @click.option("--spawn", is_flag=True, help="show the points in a new Rerun viewer")
+@_cable_set_option()
 def workspace(robot: str, payload: float, mass: float | None, step: float,
               orientation: tuple[float, float, float], angles: str, tmin: float | None, tmax: float | None,
-              rrd: str | None, spawn: bool) -> None:
+              rrd: str | None, spawn: bool, cable_set: str | None) -> None:
     """Static wrench-feasible workspace of ROBOT on a grid over its frame box (JSON; points to Rerun)."""
     import time
 
@@ -227,7 +238,7 @@ def workspace(robot: str, payload: float, mass: float | None, step: float,
     from cdpr.mechanics.workspace import compute_workspace
     from cdpr.recording.workspace import record_workspace
 
-    r = load_robot(robot)
+    r = load_robot(robot, cable_set)
     r = (r if mass is None else r.with_mass(mass)).with_payload(payload)
     lo, hi = _limits(r, tmin, tmax)
     if not (np.isfinite(step) and step > 0):
@@ -260,14 +271,15 @@ def workspace(robot: str, payload: float, mass: float | None, step: float,
               help="SDF file to write (default: ROBOT's name + .sdf; - for stdout)")
 @click.option("--tree", is_flag=True,
               help="leave out the ball joints that close the loops (for tree-only parsers)")
-def export_sdf(robot: str, output: str | None, tree: bool) -> None:
+@_cable_set_option()
+def export_sdf(robot: str, output: str | None, tree: bool, cable_set: str | None) -> None:
     """Write ROBOT as an SDF 1.6 world: frame, platform, a U-P-S leg per cable (the seed paper's model)."""
     import xml.etree.ElementTree as ET
 
     from cdpr.config.robot import load_robot
     from cdpr.tools.sdf import sdf_string
 
-    r = load_robot(robot)
+    r = load_robot(robot, cable_set)
     text = sdf_string(r, close_loops=not tree)
     if output == "-":
         click.echo(text, nl=False)
@@ -283,3 +295,84 @@ def export_sdf(robot: str, output: str | None, tree: bool) -> None:
     joints = model.findall("joint")
     emit({"robot": r.name, "file": path, "links": len(model.findall("link")), "joints": len(joints),
            "ball_joints": sum(j.get("type") == "ball" for j in joints)})
+
+
+# ------------------------------------------------------------------------------------------------
+# Robots from other tools (docs/robots.md)
+
+
+@cli.group("import")
+def import_robot() -> None:
+    """Write a robot file from another tool's model (CASPR)."""
+
+
+@import_robot.command("caspr")
+@click.argument("files", nargs=-1, required=True, type=click.Path(path_type=Path))
+@click.option("--cable-set", "cable_set", default=None, metavar="ID",
+              help="the set that becomes the file's cables (default: the model's default_cable_set); the others "
+                   "are kept as cable_sets")
+@click.option("--name", default=None, help="the robot's name (default: the model's link name, as a slug)")
+@click.option("--home", type=float, nargs=3, default=None, metavar="X Y Z",
+              help="the COM's home position, m (default: CASPR's q_initial; its orientation is kept)")
+@click.option("-o", "--output", default=None, help="robot file to write (default: NAME.yaml; - for stdout)")
+def import_caspr(files: tuple[Path, ...], cable_set: str | None, name: str | None,
+                 home: tuple[float, float, float] | None, output: str | None) -> None:
+    """Import a single-rigid-body CASPR model: FILES are its BODIES.xml and CABLES.xml, or its model folder.
+
+    Writes the robot file (attachment points from the centre of mass, mass, inertia, per-cable force limits,
+    every cable set) and names in it what CASPR does not give and the import chose (shape, frame box,
+    max_length, max_speed). The file is loaded as every robot is before it is written: a model whose home
+    pose its cables cannot hold is refused with the reason.
+    """
+    import yaml
+
+    from cdpr.config.robot import robot_from_data
+    from cdpr.tools.caspr import find_files, read_model, robot_data
+
+    bodies, cables = find_files(list(files))
+    model = read_model(bodies, cables, cable_set)
+    if home is not None:
+        if not all(np.isfinite(home)):
+            raise InputError("--home: X, Y and Z must be finite")
+        model.notes.append(f"home: {list(home)} given on the command line (CASPR's q_initial puts the COM at "
+                           f"{model.home})")
+        model.home = [float(x) for x in home]
+    origin = f"{bodies.name} + {cables.name}" if bodies.parent == cables.parent else f"{bodies} + {cables}"
+    data = robot_data(model, name, origin)
+    try:
+        robot = robot_from_data(data, f"{data['name']} (imported from {origin})")
+    except InputError as exc:
+        hint = " (--home X Y Z chooses another home position)" if ": home: " in str(exc) else ""
+        raise InputError(f"{exc}{hint}") from None
+    text = _robot_yaml(data, origin, yaml)
+    path = output or f"{data['name']}.yaml"
+    if output == "-":
+        click.echo(text, nl=False)
+        return
+    try:
+        Path(path).write_text(text, encoding="utf-8")
+    except OSError as exc:
+        raise InputError(f"-o: cannot write {path}: {exc.strerror or exc}") from None
+    emit({"robot": robot.name, "file": path, "mode": robot.mode, "cables": robot.m,
+          "cable_set": robot.cable_set, "cable_sets": [model.default_set, *data.get("cable_sets", {})],
+          "notes": model.notes})
+
+
+def _robot_yaml(data: dict[str, Any], origin: str, yaml: Any) -> str:
+    """The robot file's text: a header naming the import, short lists (points, limits) on one line."""
+
+    class Dumper(yaml.SafeDumper):
+        pass
+
+    def short_list(dumper: Any, value: list[Any]) -> Any:
+        flow = all(isinstance(v, int | float) for v in value)
+        return dumper.represent_sequence("tag:yaml.org,2002:seq", value, flow_style=flow)
+
+    def small_map(dumper: Any, value: dict[str, Any]) -> Any:
+        flow = "frame" in value and "platform" in value  # a cable: one line
+        return dumper.represent_mapping("tag:yaml.org,2002:map", value, flow_style=flow)
+
+    Dumper.add_representer(list, short_list)
+    Dumper.add_representer(dict, small_map)
+    body = yaml.dump(data, Dumper=Dumper, sort_keys=False, allow_unicode=True, width=110)
+    return f"# Imported from CASPR ({origin}) by `cdpr import caspr`: what it assumed is in `source`.\n{body}"

@@ -1,0 +1,203 @@
+"""`cdpr import caspr` (#32): eight single-rigid-body robots of CASPR's model library, imported from XML files in
+CASPR's format (tests/caspr/: the published models' numbers), against cable lengths and wrench matrices computed
+here from the XML alone; then a short session of each."""
+
+from __future__ import annotations
+
+import json
+import xml.etree.ElementTree as ET
+from pathlib import Path
+
+import numpy as np
+import pytest
+import yaml
+
+from cdpr.config.robot import load_robot
+from cdpr.mechanics.kinematics import inverse_kinematics
+from conftest import cdpr, last_json_line
+
+FIXTURES = Path(__file__).parent / "caspr"
+MODELS = sorted(p.name for p in FIXTURES.iterdir() if p.is_dir())
+HOME = {"fast": ["--home", "0", "0", "200"]}  # FAST's q_initial (z = 100 m) is below what its 120 kN floor can hold
+
+
+def test_the_eight_robots_are_there() -> None:
+    assert MODELS == ["caspr_spatial_example", "fast", "ipanema_1", "ipanema_2", "mpi_cable_robot_simulator",
+                      "nist_robocrane", "planar_xy_example", "segesta"]
+
+
+def elementary(axis: int, angle: float) -> np.ndarray:
+    c, s = np.cos(angle), np.sin(angle)
+    i, j = [k for k in range(3) if k != axis]
+    R = np.eye(3)
+    R[i, i], R[i, j], R[j, i], R[j, j] = c, -s, s, c
+    return R
+
+
+class Caspr:
+    """A model's numbers read straight from its XML (no project code): CASPR's own conventions."""
+
+    def __init__(self, name: str, cable_set: str | None = None) -> None:
+        bodies = ET.parse(FIXTURES / name / f"{name}_bodies.xml").getroot()
+        cables = ET.parse(FIXTURES / name / f"{name}_cables.xml").getroot()
+        joint = bodies.find("links/link_rigid/joint")
+        self.joint = joint.get("type")
+        self.q0 = np.array(joint.get("q_initial").split(), dtype=float)
+        self.com = np.array(bodies.findtext("links/link_rigid/physical/com_location").split(), dtype=float)
+        self.mass = float(bodies.findtext("links/link_rigid/physical/mass"))
+        chosen = cable_set or cables.get("default_cable_set")
+        cable_els = next(s for s in cables.findall("cable_set") if s.get("id") == chosen)
+        self.a, self.b, self.fmin, self.fmax = [], [], [], []
+        for c in cable_els:
+            ends = c.findall("attachments/attachment")
+            self.a.append(np.array(ends[0].findtext("location").split(), dtype=float))
+            b = np.array(ends[1].findtext("location").split(), dtype=float)
+            self.b.append(b + self.com if c.get("attachment_reference") == "com" else b)  # from the joint frame
+            self.fmin.append(float(c.findtext("properties/force_min")))
+            self.fmax.append(float(c.findtext("properties/force_max")))
+
+    def pose(self, q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """The joint frame's position and rotation at joint coordinates q (CASPR's joint models)."""
+        if self.joint == "SPATIAL_EULER_XYZ":
+            return q[:3], elementary(0, q[3]) @ elementary(1, q[4]) @ elementary(2, q[5])
+        assert self.joint == "PLANAR_XY"
+        return np.array([q[0], q[1], 0.0]), elementary(2, q[2])
+
+    def lengths_and_wrench(self, q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Cable lengths, and W with moments about the centre of mass, at q."""
+        p, R = self.pose(q)
+        lengths, W = [], []
+        for a, b in zip(self.a, self.b, strict=True):
+            v = a - (p + R @ b)
+            L = float(np.sqrt(v @ v))
+            d = v / L
+            lengths.append(L)
+            W.append(np.r_[d, np.cross(R @ (b - self.com), d)])
+        return np.array(lengths), np.array(W).T
+
+    def turned(self) -> np.ndarray:
+        """A pose beside q_initial, rotated."""
+        q = self.q0.copy()
+        if self.joint == "PLANAR_XY":
+            return q + np.array([0.02, -0.01, 0.1])
+        return q + np.array([0.01, -0.02, 0.015, 0.05, -0.04, 0.1])
+
+
+def _import(name: str, tmp_path: Path, *extra: str, out_name: str | None = None) -> tuple[Path, dict]:
+    out = tmp_path / f"{out_name or name}.yaml"
+    proc = cdpr("import", "caspr", str(FIXTURES / name), "-o", str(out), *HOME.get(name, []), *extra, timeout=60)
+    assert proc.returncode == 0, proc.stderr
+    return out, json.loads(proc.stdout)
+
+
+@pytest.mark.parametrize("name", MODELS)
+def test_the_import_has_caspr_s_lengths_and_wrench_matrix(name: str, tmp_path: Path) -> None:
+    path, report = _import(name, tmp_path)
+    robot = load_robot(path)
+    model = Caspr(name)
+    assert robot.m == len(model.a) == report["cables"]
+    assert robot.mass == model.mass
+    assert robot.tmin.tolist() == model.fmin
+    assert robot.tmax.tolist() == model.fmax
+    assert robot.mode == ("planar" if model.joint == "PLANAR_XY" else "spatial")
+    home_q = model.q0.copy()
+    if name in HOME:
+        home_q[:3] = [0.0, 0.0, 200.0]
+    for q in (home_q, model.turned()):
+        lengths, W = model.lengths_and_wrench(q)
+        p, R = model.pose(q)
+        ours = inverse_kinematics(robot, p + R @ model.com, R)  # the project's platform frame is at the COM
+        np.testing.assert_allclose(ours.lengths, lengths, rtol=1e-12, atol=1e-12)
+        np.testing.assert_allclose(ours.wrench_matrix, W, rtol=1e-12, atol=1e-12)
+    np.testing.assert_allclose(robot.home_position, model.pose(home_q)[0] + model.pose(home_q)[1] @ model.com,
+                               rtol=0, atol=1e-12)
+    assert "Assumed (CASPR does not give them)" in robot.source
+
+
+def test_every_cable_set_comes_along_and_either_can_be_chosen(tmp_path: Path) -> None:
+    path, report = _import("caspr_spatial_example", tmp_path)
+    assert report["cable_sets"] == ["basic_7_cables", "alternative_7_cables", "basic_8_cables", "cross_8_cables"]
+    data = yaml.safe_load(path.read_text())
+    assert data["cable_set"] == "basic_7_cables"
+    assert sorted(data["cable_sets"]) == ["alternative_7_cables", "basic_8_cables", "cross_8_cables"]
+    eight = load_robot(path, "cross_8_cables")
+    assert (eight.m, eight.cable_set) == (8, "cross_8_cables")
+    lengths, _ = Caspr("caspr_spatial_example", "cross_8_cables").lengths_and_wrench(Caspr("caspr_spatial_example").q0)
+    np.testing.assert_allclose(inverse_kinematics(eight, eight.home_position, eight.home_rotation).lengths, lengths,
+                               rtol=1e-12)
+    chosen, report = _import("caspr_spatial_example", tmp_path, "--cable-set", "basic_8_cables", out_name="eight")
+    assert (load_robot(chosen).m, report["cable_set"]) == (8, "basic_8_cables")
+    proc = cdpr("robots", str(path), "--cable-set", "nope", timeout=60)
+    assert proc.returncode == 2
+    assert "cable_set: no cable set 'nope' (this robot has: basic_7_cables, alternative_7_cables" in proc.stderr
+
+
+@pytest.mark.parametrize("name", MODELS)
+def test_a_short_session_of_each_imported_robot_finishes(name: str, tmp_path: Path) -> None:
+    path, _ = _import(name, tmp_path)
+    robot = load_robot(path)
+    step = 0.005 if robot.mode == "spatial" else 0.002  # m along x from home
+    scenario = {
+        "name": f"caspr_{name}", "robot": str(path), "dt": 0.001, "duration": 0.6,
+        "trajectory": {"type": "quintic", "waypoints": [
+            {"t": 0.0, "position": robot.home_position.tolist()},
+            {"t": 0.5, "position": (robot.home_position + np.array([step, 0.0, 0.0])).tolist()}]},
+        "controller": {"kp": 100.0, "kd": 20.0},
+    }
+    file = tmp_path / "scenario.yaml"
+    file.write_text(yaml.safe_dump(scenario))
+    proc = cdpr("run", str(file), timeout=300)
+    assert proc.returncode == 0, proc.stderr[-3000:]
+    summary = last_json_line(proc.stdout)
+    assert summary["exit_ok"]
+    assert summary["steps"] == 600
+    assert summary["max_position_error"] < 1e-3
+
+
+MULTI_LINK = """<?xml version="1.0" encoding="utf-8"?>
+<bodies_system><links>
+  <link_rigid num="1" name="upper arm"><joint type="R_Z" q_initial="0"/></link_rigid>
+  <link_rigid num="2" name="forearm"><joint type="R_Z" q_initial="0"/></link_rigid>
+</links></bodies_system>
+"""
+
+
+@pytest.mark.parametrize(
+    ("change", "message"),
+    [
+        ({"bodies": MULTI_LINK},
+         "a CASPR model with 2 link(s) (link_rigid): cdpr imports single-rigid-body models only"),
+        ({"joint": ("SPATIAL_EULER_XYZ", "S_EULER_XYZ")}, "joint type 'S_EULER_XYZ': cdpr imports SPATIAL_EULER_XYZ"),
+        ({"cables": ("<link>1</link>", "<link>2</link>")}, "attached to links 0, 2: cdpr imports cables that run from "
+                                                            "the frame (link 0) straight to the platform (link 1)"),
+        ({"cables": ("<force_max>1000</force_max>", "<force_max>lots</force_max>")}, "force_max: expected"),
+        ({"bodies": "<bodies_system><links>"}, "not valid XML"),
+        ({"arg": ["--cable-set", "nope"]}, "--cable-set: no cable set 'nope'"),
+    ],
+)
+def test_a_model_it_cannot_import_gives_one_line_and_exit_2(tmp_path: Path, change: dict, message: str) -> None:
+    src = FIXTURES / "nist_robocrane"
+    bodies = (src / "nist_robocrane_bodies.xml").read_text()
+    cables = (src / "nist_robocrane_cables.xml").read_text()
+    if "bodies" in change:
+        bodies = change["bodies"]
+    if "joint" in change:
+        bodies = bodies.replace(*change["joint"])
+    if "cables" in change:
+        cables = cables.replace(*change["cables"], 1)
+    (tmp_path / "m_bodies.xml").write_text(bodies)
+    (tmp_path / "m_cables.xml").write_text(cables)
+    proc = cdpr("import", "caspr", str(tmp_path / "m_bodies.xml"), str(tmp_path / "m_cables.xml"),
+                "-o", str(tmp_path / "out.yaml"), *change.get("arg", []), timeout=60)
+    assert proc.returncode == 2, proc.stderr
+    lines = proc.stderr.strip().splitlines()
+    assert len(lines) == 1, proc.stderr
+    assert message in lines[0]
+    assert not (tmp_path / "out.yaml").exists()
+
+
+def test_a_home_its_cables_cannot_hold_is_refused_with_the_way_out(tmp_path: Path) -> None:
+    proc = cdpr("import", "caspr", str(FIXTURES / "fast"), "-o", str(tmp_path / "fast.yaml"), timeout=60)
+    assert proc.returncode == 2
+    assert "home: no tensions in [120000, 1.2e+06] N" in proc.stderr
+    assert "--home X Y Z" in proc.stderr

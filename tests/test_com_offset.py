@@ -1,0 +1,99 @@
+"""A platform frame whose origin is not the centre of mass (#32, `platform.com`): points and poses in that frame,
+the dynamics about the COM. The same robot described about its COM moves the same (≤ 1e-9 m)."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+import pytest
+import yaml
+
+from cdpr import recording
+from cdpr.config.robot import load_robot
+from cdpr.mechanics.kinematics import inverse_kinematics
+from cdpr.mechanics.rotation import rpy_to_matrix
+from cdpr.mechanics.trajectory import PlatformPoint, QuinticWaypoints
+from cdpr.tools.report import read_recording
+from conftest import cdpr
+
+CUBE = Path(__file__).parent / "robots" / "valid" / "cube_8.yaml"
+C = [0.05, -0.03, 0.04]  # the COM in the offset robot's platform frame
+
+
+def offset_robot(tmp_path: Path) -> Path:
+    """cube_8 described in a platform frame whose origin is −C from its COM: points and home moved by +C/−C."""
+    spec = yaml.safe_load(CUBE.read_text())
+    spec["name"] = "cube_8_offset"
+    spec["platform"]["com"] = C
+    for cable in spec["cables"]:
+        cable["platform"] = (np.array(cable["platform"]) + C).tolist()
+    spec["home"]["position"] = (np.array(spec["home"]["position"]) - C).tolist()
+    path = tmp_path / "cube_8_offset.yaml"
+    path.write_text(yaml.safe_dump(spec))
+    return path
+
+
+def test_points_and_home_are_taken_from_the_com(tmp_path: Path) -> None:
+    about_com, offset = load_robot(CUBE), load_robot(offset_robot(tmp_path))
+    np.testing.assert_allclose(offset.platform_points, about_com.platform_points, rtol=0, atol=1e-15)
+    np.testing.assert_allclose(offset.home_position, about_com.home_position, rtol=0, atol=1e-15)
+    assert offset.com_offset.tolist() == C
+    assert offset.summary()["com_offset"] == C
+    # a pose of the platform frame on the command line is that frame's: the COM is at p + R c
+    p, rpy = [0.2, -0.1, 1.4], [0.1, -0.05, 0.2]
+    R = rpy_to_matrix(*rpy)
+    proc = cdpr("ik", str(offset_robot(tmp_path)), "--pose", *map(str, p + rpy), timeout=60)
+    assert proc.returncode == 0, proc.stderr
+    expected = inverse_kinematics(about_com, np.array(p) + R @ C, R).lengths
+    np.testing.assert_allclose(json.loads(proc.stdout)["lengths"], expected, rtol=0, atol=1e-12)
+
+
+def test_the_com_follows_the_frame_s_motion() -> None:
+    """PlatformPoint: position, twist and acceleration of the point C of a platform on a turning quintic are
+    each other's derivatives (central differences)."""
+    frame = QuinticWaypoints([0.0, 2.0], [[0.0, 0.0, 1.0], [0.5, -0.2, 1.3]], [[0.0, 0.0, 0.0], [0.3, -0.2, 0.6]])
+    com = PlatformPoint(frame, C)
+    h = 1e-5
+    for t in (0.3, 0.9, 1.6):
+        s, before, after = com.sample(t), com.sample(t - h), com.sample(t + h)
+        f = frame.sample(t)
+        np.testing.assert_allclose(s.position, f.position + f.rotation @ C, atol=1e-15)
+        np.testing.assert_array_equal(s.rotation, f.rotation)
+        np.testing.assert_allclose(s.twist[:3], (after.position - before.position) / (2 * h), atol=1e-8)
+        np.testing.assert_allclose(s.accel[:3], (after.twist[:3] - before.twist[:3]) / (2 * h), atol=1e-6)
+        np.testing.assert_array_equal(s.twist[3:], f.twist[3:])
+    assert com.waypoints()[-1][1].tolist() == pytest.approx((frame.sample(2.0).position
+                                                            + frame.sample(2.0).rotation @ C).tolist())
+
+
+def _positions(rrd: Path) -> np.ndarray:
+    return read_recording(rrd).get(recording.ACTUAL_POSITION).values
+
+
+def test_the_offset_robot_moves_as_the_robot_described_about_its_com(tmp_path: Path) -> None:
+    """Two real sessions: cube_8 (about its COM) and the same robot in an offset frame whose waypoints are the
+    frame's (the COM's minus C, a translation): the recorded COM motions agree to 1e-9 m."""
+    home = np.array(yaml.safe_load(CUBE.read_text())["home"]["position"])
+    goal = home + np.array([0.3, -0.2, 0.1])
+    runs = {}
+    for name, robot, shift in (("com", str(CUBE), 0.0), ("offset", str(offset_robot(tmp_path)), 1.0)):
+        scenario = {
+            "name": f"cube_{name}", "robot": robot, "dt": 0.001, "duration": 2.5,
+            "trajectory": {"type": "quintic", "waypoints": [
+                {"t": 0.0, "position": (home - shift * np.array(C)).tolist()},
+                {"t": 2.0, "position": (goal - shift * np.array(C)).tolist()}]},
+            "controller": {"kp": 400.0, "kd": 40.0},
+        }
+        file = tmp_path / f"{name}.yaml"
+        file.write_text(yaml.safe_dump(scenario))
+        rrd = tmp_path / f"{name}.rrd"
+        proc = cdpr("run", str(file), "--in-process", "--rrd", str(rrd), timeout=300)
+        assert proc.returncode == 0, proc.stderr[-3000:]
+        runs[name] = _positions(rrd)
+    a, b = runs["com"], runs["offset"]
+    assert a.shape == b.shape
+    assert a.shape[0] > 2000
+    assert np.abs(a - b).max() <= 1e-9
+    assert np.abs(a[-1] - goal).max() < 1e-3  # and it went where it was sent
