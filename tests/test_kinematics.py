@@ -13,6 +13,7 @@ import pytest
 
 from cdpr.config.robot import load_robot, shipped_robots
 from cdpr.mechanics.kinematics import cable_length_rates, forward_kinematics, inverse_kinematics
+from cdpr.mechanics.pulley import pulley_geometry
 from cdpr.mechanics.robot import Robot, Shape
 from cdpr.mechanics.rotation import Array, rotvec_to_matrix, rpy_to_matrix
 
@@ -152,7 +153,9 @@ def test_wrench_of_tensions_is_the_sum_of_cable_forces_and_moments(robot: Robot)
         f = rng.uniform(1.0, 100.0, robot.m)
         force = np.zeros(3)
         moment = np.zeros(3)
-        for a, b, fi in zip(robot.frame_points, robot.platform_points, f, strict=True):
+        ends = robot.frame_points if robot.pulleys is None else pulley_geometry(  # where it leaves its pulley
+            robot.frame_points, robot.pulleys, t + robot.platform_points @ R.T).tangent_points
+        for a, b, fi in zip(ends, robot.platform_points, f, strict=True):
             p = t + R @ b  # the attach point in the world
             pull = fi * (a - p) / np.linalg.norm(a - p)  # a cable pulls the platform towards the frame
             force += pull

@@ -19,6 +19,7 @@ from scipy.optimize import linprog
 from cdpr.config.robot import load_robot, shipped_robots
 from cdpr.errors import InputError
 from cdpr.mechanics.kinematics import inverse_kinematics
+from cdpr.mechanics.pulley import pulley_geometry
 from cdpr.mechanics.robot import Robot
 from cdpr.mechanics.rotation import rpy_to_matrix
 
@@ -32,10 +33,13 @@ def static_tensions(robot: Robot, position: np.ndarray, R: np.ndarray) -> np.nda
     """Tensions in [tmin, tmax] holding the platform still at the pose (least total tension), or None.
 
     Built from first principles: column i of the wrench is the unit vector from the platform point to
-    the frame point and its moment about the centre of mass; gravity is m·g at the centre of mass.
+    the frame point (over an exit pulley, to where the cable leaves it: tests/test_pulley.py checks that point)
+    and its moment about the centre of mass; gravity is m·g at the centre of mass.
     """
     pts = position + robot.platform_points @ R.T
-    d = robot.frame_points - pts
+    ends = robot.frame_points if robot.pulleys is None else pulley_geometry(robot.frame_points, robot.pulleys,
+                                                                             pts).tangent_points
+    d = ends - pts
     d /= np.linalg.norm(d, axis=1, keepdims=True)
     W = np.vstack([d.T, np.cross(pts - position, d).T])
     weight = np.array([0.0, 0.0, -G * robot.mass, 0.0, 0.0, 0.0])

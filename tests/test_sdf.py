@@ -24,9 +24,15 @@ from cdpr.mechanics.tda import make_tda
 from cdpr.tools.sdf import LINK_MASS, matrix_to_rpy, sdf_string, sdf_world, write_sdf
 from conftest import cdpr, last_json_line
 
-ROBOTS = shipped_robots() + sorted(
+ROBOTS = [name for name in shipped_robots() if load_robot(name).pulleys is None] + sorted(
     str(p) for p in (Path(__file__).parent / "robots" / "valid").glob("*.yaml")
-)
+)  # (a robot with exit pulleys has no SDF: test_a_robot_with_pulleys_is_refused)
+
+
+def test_a_robot_with_pulleys_is_refused() -> None:
+    proc = cdpr("export-sdf", "caroca_pulleys", "-o", "-", timeout=60)
+    assert proc.returncode == 2
+    assert "caroca_pulleys: exit pulleys: the SDF's U-P-S legs pivot at fixed frame points" in proc.stderr
 
 
 def nums(el: ET.Element | None) -> np.ndarray:

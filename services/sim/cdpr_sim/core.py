@@ -80,6 +80,7 @@ import numpy as np
 from numpy.typing import ArrayLike
 
 from cdpr.config.scenario import Scenario
+from cdpr.mechanics.pulley import pulley_geometry
 from cdpr.mechanics.robot import GRAVITY, Robot
 from cdpr.mechanics.rotation import Array, matrix_to_quat, quat_matrix, readonly, rotvec_quat, skew
 from cdpr.protocol import State
@@ -286,6 +287,7 @@ class PlatformSim:
         self._planar = self._platform.planar and robot.plane == "xz"  # a ZX joint's coordinates
         self._horizontal = self._platform.planar and robot.plane == "xy"  # an XY joint's
         self._tmax = tension_ceiling(self.robot)
+        self._pulleys = robot.pulleys
         self._point_mass = robot.mode == "point_mass"
         self._shape = (robot.m,)  # of a command
         self._tensions = readonly(np.zeros(robot.m))
@@ -335,8 +337,19 @@ class PlatformSim:
             features = (qx * qx, qy * qy, qz * qz, qx * qy, qx * qz, qy * qz, qx * qw, qy * qw, qz * qw, x, y, z, 1.0)
             unnormalised = (self._line_map @ np.array(features)).reshape(-1, 6)  # rows [a_i × l_i; l_i]
             lengths = np.sqrt(np.square(unnormalised) @ _FORCE_HALF)
+            if self._pulleys is not None:  # each cable's line leaves its pulley at T_i: rows [T_i × d_i; d_i]·l_i
+                unnormalised, lengths = self._over_pulleys((x, y, z), quat_matrix(qx, qy, qz, qw))
             self._now = ((x, y, z, qx, qy, qz, qw), twist, unnormalised, lengths)
         return self._now
+
+    def _over_pulleys(self, t: tuple[float, float, float], R: Array) -> tuple[Array, Array]:
+        """The cables' unnormalised Plücker rows and lengths over their exit pulleys (:mod:`cdpr.mechanics.pulley`):
+        the line of cable i passes through T_i, where it leaves the wheel, along the free span d_i; its length
+        is the wrapped arc plus the span."""
+        assert self._pulleys is not None
+        g = pulley_geometry(self.robot.frame_points, self._pulleys, np.array(t) + self.robot.platform_points @ R.T)
+        d = g.free_spans / g.free_lengths[:, None]
+        return np.hstack((np.cross(g.tangent_points, d), d)) * g.lengths[:, None], g.lengths
 
     def state(self) -> PlatformState:
         """The current state. Its arrays are read-only and never change afterwards: safe to keep."""

@@ -363,7 +363,7 @@ class WinchSim(ABC):
         tf = self._body.getTransform()
         p, R = tf.translation(), tf.rotation()
         v, w = self._body.getLinearVelocity(), self._body.getAngularVelocity()
-        arms, lengths, d, _, rates = cable_geometry(self._a, self._b, p, R, v, w)
+        arms, lengths, d, _, rates = cable_geometry(self._a, self._b, p, R, v, w, self.robot.pulleys)
         points = p + arms
         g = Geometry(*(readonly(x) for x in (p, R, np.concatenate((v, w)), points, arms, lengths, d, rates)))
         self._geometry = g

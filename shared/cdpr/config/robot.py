@@ -21,6 +21,7 @@ from pydantic import (
 from cdpr.config.loading import Strict, parse_model, read_yaml, resolve, shipped_names
 from cdpr.errors import InputError
 from cdpr.mechanics.kinematics import check_robot
+from cdpr.mechanics.pulley import Pulleys
 from cdpr.mechanics.robot import Mode, Plane, Robot, Shape, frozen_array
 from cdpr.mechanics.rotation import rpy_to_matrix
 from cdpr.mechanics.workspace import wrench_feasible
@@ -93,13 +94,27 @@ class CableLimitsSpec(Strict):
         return self
 
 
+class PulleySpec(Strict):
+    radius: FiniteFloat = Field(ge=0.0, description="the pulley wheel's radius, m (0: a fixed exit point)")
+    axis: Vec3 = Field(description="the swivel axis through the cable's frame point, pointing the way the cable runs "
+                                   "into the pulley (from its winch)")
+
+    @field_validator("axis")
+    @classmethod
+    def _axis_not_zero(cls, v: list[float]) -> list[float]:
+        if float(np.linalg.norm(v)) < 1e-9:
+            raise ValueError("must not be zero (a direction)")
+        return v
+
+
 class CableSpec(Strict):
-    frame: Vec3 = Field(description="a_i, frame (world) attach point")
+    frame: Vec3 = Field(description="a_i, frame (world) attach point (with a pulley: where the cable meets its axis)")
     platform: Vec3 = Field(description="b_i, platform attach point in the platform frame")
     tmin: FiniteFloat | None = Field(None, ge=0.0, description="this cable's least tension, N (default limits.tmin)")
     tmax: PositiveFloat | None = Field(None, description="this cable's greatest tension, N (default limits.tmax)")
     max_length: PositiveFloat | None = Field(None, description="this cable's longest length, m (default "
                                                                 "limits.max_length)")
+    pulley: PulleySpec | None = Field(None, description="a swivelling exit pulley (docs/robots.md)")
 
 
 class DampingSpec(Strict):
@@ -213,10 +228,20 @@ def robot_from_spec(spec: RobotSpec, where: str) -> Robot:
         plane=spec.plane or "xz",
         cable_set=spec.cable_set,
         com_offset=frozen_array(com),
+        pulleys=_pulleys(spec.cables),
     )
     check_robot(robot, where)
     check_home_held(robot, where, spec.home.position, spec.home.rpy)
     return robot
+
+
+def _pulleys(cables: list[CableSpec]) -> Pulleys | None:
+    """The cables' pulleys (None when no cable has one of radius > 0)."""
+    if all(c.pulley is None or c.pulley.radius == 0.0 for c in cables):
+        return None
+    radius = [0.0 if c.pulley is None else c.pulley.radius for c in cables]
+    axis = np.array([[0.0, 0.0, 1.0] if c.pulley is None else c.pulley.axis for c in cables], dtype=float)
+    return Pulleys(frozen_array(radius), frozen_array(axis / np.linalg.norm(axis, axis=1, keepdims=True)))
 
 
 def check_home_held(robot: Robot, where: str, position: list[float], rpy: list[float]) -> None:

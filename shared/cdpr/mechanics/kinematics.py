@@ -20,14 +20,15 @@ import numpy as np
 from numpy.typing import ArrayLike
 
 from cdpr.errors import InputError
+from cdpr.mechanics.pulley import Pulleys, pulley_geometry
 from cdpr.mechanics.robot import Robot
 from cdpr.mechanics.rotation import Array, cross_rows, rotvec_to_matrix
 
 
 @dataclass(frozen=True)
 class CableKinematics:
-    vectors: Array  # (m, 3) l_i, platform → frame
-    lengths: Array  # (m,)
+    vectors: Array  # (m, 3) l_i, platform → frame (over a pulley: the free span, platform → where it leaves the wheel)
+    lengths: Array  # (m,) (over a pulley: the wrapped arc plus the free span)
     directions: Array  # (m, 3) unit d_i
     platform_points_world: Array  # (m, 3) t + R b_i
     wrench_matrix: Array  # (6, m) W = −Jᵀ
@@ -47,13 +48,21 @@ def cable_vectors(frame_points: Array, platform_points: Array, position: Array, 
     return arms, vectors, np.sqrt(np.einsum("ij,ij->i", vectors, vectors))
 
 
-def _chords(frame_points: Array, platform_points: Array, position: Array, R: Array
+def _chords(frame_points: Array, platform_points: Array, position: Array, R: Array, pulleys: Pulleys | None = None
             ) -> tuple[Array, Array, Array, Array, Array]:
     """:func:`cable_vectors` and the directions: ``(arms, vectors, lengths, unit d_i, moments (R b_i) × d_i)``.
-    A zero length gives NaN directions (and a numpy warning, which callers that expect it silence)."""
-    arms, vectors, lengths = cable_vectors(frame_points, platform_points, position, R)
-    d = vectors / lengths[:, None]
-    return arms, vectors, lengths, d, cross_rows(arms, d)
+    A zero length gives NaN directions (and a numpy warning, which callers that expect it silence).
+
+    With ``pulleys`` (:mod:`cdpr.mechanics.pulley`), a cable's vector is its free span T_i − B_i from the platform
+    to where it leaves its pulley, d_i that span's direction and its length the wrapped arc plus the span."""
+    if pulleys is None:
+        arms, vectors, lengths = cable_vectors(frame_points, platform_points, position, R)
+        d = vectors / lengths[:, None]
+        return arms, vectors, lengths, d, cross_rows(arms, d)
+    arms = platform_points @ R.T
+    g = pulley_geometry(frame_points, pulleys, position + arms)
+    d = g.free_spans / g.free_lengths[:, None]
+    return arms, g.free_spans, g.lengths, d, cross_rows(arms, d)
 
 
 def _wrench_matrix(d: Array, moments: Array) -> Array:
@@ -63,11 +72,13 @@ def _wrench_matrix(d: Array, moments: Array) -> Array:
     return W
 
 
-def cable_kinematics(frame_points: Array, platform_points: Array, position: ArrayLike, R: ArrayLike) -> CableKinematics:
-    """Eq. 2–4 for arbitrary attach points (vectorised over cables)."""
+def cable_kinematics(frame_points: Array, platform_points: Array, position: ArrayLike, R: ArrayLike,
+                     pulleys: Pulleys | None = None) -> CableKinematics:
+    """Eq. 2–4 for arbitrary attach points (vectorised over cables), over exit pulleys if given."""
     t = np.asarray(position, dtype=float)
     with np.errstate(invalid="ignore", divide="ignore"):
-        arms, vectors, lengths, d, moments = _chords(frame_points, platform_points, t, np.asarray(R, dtype=float))
+        arms, vectors, lengths, d, moments = _chords(frame_points, platform_points, t, np.asarray(R, dtype=float),
+                                                     pulleys)
     return CableKinematics(vectors, lengths, d, t + arms, _wrench_matrix(d, moments))
 
 
@@ -81,14 +92,17 @@ class WrenchMatrix:
     def __init__(self, robot: Robot) -> None:
         self._a = np.array(robot.frame_points, dtype=float)
         self._b = np.array(robot.platform_points, dtype=float)
+        self._pulleys = robot.pulleys
 
     def __call__(self, position: ArrayLike, R: ArrayLike) -> Array:
-        _, _, _, d, moments = _chords(self._a, self._b, np.asarray(position, dtype=float), np.asarray(R, dtype=float))
+        _, _, _, d, moments = _chords(self._a, self._b, np.asarray(position, dtype=float), np.asarray(R, dtype=float),
+                                      self._pulleys)
         return _wrench_matrix(d, moments)
 
 
 def cable_geometry(
-    frame_points: Array, platform_points: Array, position: Array, R: Array, v: Array, omega: Array
+    frame_points: Array, platform_points: Array, position: Array, R: Array, v: Array, omega: Array,
+    pulleys: Pulleys | None = None,
 ) -> tuple[Array, Array, Array, Array, Array]:
     """The cables of a moving platform: ``(arms, lengths, directions, moments, rates)``.
 
@@ -96,15 +110,17 @@ def cable_geometry(
     force block), ``moments`` (m, 3) (R b_i) × d_i (rows of W's moment block) and ``rates`` (m,) the
     length rates l̇ = J v = −(d_i · v + ((R b_i) × d_i) · ω), for the platform at (position, R) moving
     with linear velocity ``v`` and angular velocity ``omega`` (world frame). What a simulator reads
-    off its body every step; no checks (the lengths must not be zero).
+    off its body every step; no checks (the lengths must not be zero). Over exit ``pulleys``: the lengths include
+    the wrapped arcs, the directions are the free spans' (and l̇ = J v still holds exactly).
     """
-    arms, _, lengths, d, moments = _chords(frame_points, platform_points, position, R)
+    arms, _, lengths, d, moments = _chords(frame_points, platform_points, position, R, pulleys)
     return arms, lengths, d, moments, -(d @ v + moments @ omega)
 
 
 def inverse_kinematics(robot: Robot, position: ArrayLike, R: ArrayLike | None = None) -> CableKinematics:
     """Cable vectors, lengths, unit vectors and wrench matrix of ``robot`` at pose (position, R)."""
-    return cable_kinematics(robot.frame_points, robot.platform_points, position, np.eye(3) if R is None else R)
+    return cable_kinematics(robot.frame_points, robot.platform_points, position, np.eye(3) if R is None else R,
+                            robot.pulleys)
 
 
 def cable_length_rates(kin: CableKinematics, twist: ArrayLike) -> Array:
@@ -151,7 +167,7 @@ def forward_kinematics(
 
     def residual(x: Array) -> Array:
         p, R = unpack(x)
-        return cable_kinematics(robot.frame_points, robot.platform_points, p, R).lengths - target
+        return cable_kinematics(robot.frame_points, robot.platform_points, p, R, robot.pulleys).lengths - target
 
     x0 = {"point_mass": p0.copy(), "planar": np.r_[p0[in_plane], 0.0], "spatial": np.r_[p0, 0.0, 0.0, 0.0]}[
         robot.mode

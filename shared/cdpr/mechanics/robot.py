@@ -26,6 +26,7 @@ import numpy as np
 from numpy.typing import ArrayLike
 
 from cdpr.errors import InputError
+from cdpr.mechanics.pulley import Pulleys
 from cdpr.mechanics.rotation import Array
 
 Mode = Literal["spatial", "point_mass", "planar"]
@@ -94,6 +95,9 @@ class Robot:
     # The COM in the platform frame of the robot file (whose origin need not be the COM): every point, pose and
     # motion here is of the COM; a pose given for that frame is the COM's after :meth:`com_pose`.
     com_offset: Array = dataclasses.field(default_factory=lambda: frozen_array(np.zeros(3)))
+    # Swivelling exit pulleys (:mod:`cdpr.mechanics.pulley`): None, or per cable a radius (0: none) and an axis;
+    # a cable with a pulley runs into it at its frame point a_i.
+    pulleys: Pulleys | None = None
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "com_offset", frozen_array(np.broadcast_to(self.com_offset, (3,))))
@@ -149,6 +153,8 @@ class Robot:
         """A copy with ``changes``; with another number of cables, limits the same for every cable carry over
         (per-cable ones must be given anew)."""
         if "frame_points" in changes and np.shape(changes["frame_points"])[0] != self.m:
+            if self.pulleys is not None and "pulleys" not in changes:
+                raise InputError("pulleys: the robot has pulleys: give them for the new cables")
             for name in ("tmin", "tmax", "max_length"):
                 value = getattr(self, name)
                 if name not in changes:
@@ -179,6 +185,8 @@ class Robot:
             **({"plane": self.plane} if self.mode == "planar" else {}),
             "cable_set": self.cable_set,
             "com_offset": self.com_offset.tolist(),
+            **({} if self.pulleys is None else {"pulleys": {"radius": self.pulleys.radius.tolist(),
+                                                            "axis": self.pulleys.axis.tolist()}}),
             "cables": self.m,
             "dof": self.dof,
             "mass": self.mass,

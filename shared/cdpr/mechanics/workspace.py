@@ -41,6 +41,7 @@ from numpy.typing import ArrayLike, NDArray
 
 from cdpr.errors import InputError
 from cdpr.mechanics.dynamics import gravity_wrench, required_wrench
+from cdpr.mechanics.pulley import pulley_geometry
 from cdpr.mechanics.rotation import Array
 
 if TYPE_CHECKING:
@@ -178,7 +179,10 @@ def wrench_matrices(robot: Robot, positions: ArrayLike, rotations: ArrayLike | N
     R = np.eye(3) if rotations is None else np.asarray(rotations, dtype=float)
     Rb = np.einsum("...ij,mj->...mi", R, robot.platform_points)  # (m, 3) or (n, m, 3)
     Rb = np.broadcast_to(Rb, (p.shape[0], robot.m, 3))
-    vectors = robot.frame_points[None] - p[:, None, :] - Rb
+    if robot.pulleys is None:
+        vectors = robot.frame_points[None] - p[:, None, :] - Rb
+    else:  # the free spans from where the cables leave their pulleys
+        vectors = pulley_geometry(robot.frame_points, robot.pulleys, p[:, None, :] + Rb).free_spans
     lengths = np.linalg.norm(vectors, axis=2, keepdims=True)
     d = np.divide(vectors, lengths, out=np.full_like(vectors, np.nan), where=lengths > 1e-9)
     return np.concatenate([d, np.cross(Rb, d)], axis=2).transpose(0, 2, 1)

@@ -18,6 +18,7 @@ from cdpr.errors import InputError
 from cdpr.mechanics.camera import Camera, camera_from_spec
 from cdpr.mechanics.control import Gains, Variant, controlled_rows
 from cdpr.mechanics.kinematics import check_robot
+from cdpr.mechanics.pulley import Pulleys
 from cdpr.mechanics.robot import PLANE_ROWS, Robot, Shape
 from cdpr.protocol.messages import PROTOCOL_VERSION, ProtocolError, unpack
 
@@ -102,6 +103,8 @@ def robot_from_summary(summary: dict[str, Any]) -> Robot:
             plane=summary.get("plane", "xz"),
             cable_set=str(summary.get("cable_set", "default")),
             com_offset=_readonly(summary.get("com_offset", [0.0, 0.0, 0.0]), (3,)),
+            pulleys=None if (pulleys := summary.get("pulleys")) is None else Pulleys(
+                _readonly(pulleys["radius"], (m,)), _readonly(pulleys["axis"], (m, 3))),
         )
     except ProtocolError:
         raise

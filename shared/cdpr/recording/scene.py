@@ -25,6 +25,7 @@ from numpy.typing import ArrayLike, NDArray
 
 from cdpr.errors import InputError
 from cdpr.mechanics.camera import Camera
+from cdpr.mechanics.pulley import pulley_geometry
 from cdpr.mechanics.robot import Robot
 from cdpr.mechanics.rotation import matrix_to_quat, quat_matrix
 from cdpr.protocol.streams import (
@@ -130,13 +131,17 @@ def recording_id(session: str, env: Mapping[str, str] | None = None) -> str:
 
 
 def cable_strips(robot: Robot, positions: ArrayLike, quaternions: ArrayLike) -> NDArray[np.float64]:
-    """Cable segments for n poses: (n, m, 2, 3), each [b_i in the world, a_i]. Quaternions [qx,qy,qz,qw]."""
+    """Cable segments for n poses: (n, m, 2, 3), each [b_i in the world, a_i] (over an exit pulley, its free span:
+    [b_i, T_i], T_i where the cable leaves the wheel). Quaternions [qx,qy,qz,qw]."""
     p = np.asarray(positions, dtype=float).reshape(-1, 3)
     q = np.asarray(quaternions, dtype=float).reshape(-1, 4)
     q = q / np.linalg.norm(q, axis=1, keepdims=True)
     R = np.moveaxis(quat_matrix(*q.T), -1, 0)  # (n, 3, 3)
     b_world = p[:, None, :] + np.einsum("nij,mj->nmi", R, robot.platform_points)
-    a = np.broadcast_to(robot.frame_points, b_world.shape)
+    if robot.pulleys is None:
+        a = np.broadcast_to(robot.frame_points, b_world.shape)
+    else:
+        a = pulley_geometry(robot.frame_points, robot.pulleys, b_world).tangent_points
     return np.stack([b_world, a], axis=2)
 
 

@@ -47,6 +47,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 from numpy.typing import ArrayLike
 
+from cdpr.errors import InputError
 from cdpr.mechanics.robot import GRAVITY
 from cdpr.mechanics.rotation import Array
 
@@ -193,6 +194,9 @@ def _frame_edges(link: ET.Element, lo: Array, hi: Array) -> None:
 
 def sdf_world(robot: Robot, close_loops: bool = True, dt: float = 0.001) -> ET.Element:
     """The ``<sdf>`` element of a world holding ``robot`` at its home pose (module docstring: layout)."""
+    if robot.pulleys is not None:
+        raise InputError(f"{robot.name}: exit pulleys: the SDF's U-P-S legs pivot at fixed frame points and cannot "
+                         "swivel a pulley; export the robot without them (a radius of 0)")
     p0, R0 = np.asarray(robot.home_position, dtype=float), np.asarray(robot.home_rotation, dtype=float)
     sdf = ET.Element("sdf", version=SDF_VERSION)
     world = _sub(sdf, "world", name=robot.name)

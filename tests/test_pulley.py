@@ -1,0 +1,234 @@
+"""Swivelling exit pulleys (#32): the closed form of cdpr.mechanics.pulley against a computation written here —
+the cable's path over the wheel as the shortest one from the swivel axis to the platform point (the swivel angle
+and the tangent angle found by Newton's method on the length's gradient) — and the kinematics built on it."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+import yaml
+
+from cdpr.config.robot import load_robot
+from cdpr.config.scenario import load_scenario
+from cdpr.errors import InputError
+from cdpr.mechanics.dynamics import forward_dynamics
+from cdpr.mechanics.kinematics import WrenchMatrix, cable_geometry, inverse_kinematics
+from cdpr.mechanics.pulley import Pulleys, pulley_geometry
+from cdpr.mechanics.robot import Robot
+from cdpr.mechanics.rotation import rotvec_to_matrix
+from cdpr.mechanics.workspace import wrench_matrices
+from cdpr.protocol.session import robot_from_summary
+from cdpr_sim.core import PlatformSim
+from conftest import cdpr, last_json_line
+
+SHIPPED = Path(__file__).parents[1] / "shared" / "cdpr"
+
+
+def frame_of(u: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Two unit vectors p, q with (p, q, u) right-handed."""
+    p = np.cross(u, [0.3, 0.5, 0.8])
+    p /= np.linalg.norm(p)
+    return p, np.cross(u, p)
+
+
+def wheel(x: np.ndarray, a: np.ndarray, u: np.ndarray, r: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """For the swivel angle σ and the angle φ on the wheel in x: (e, the wheel's centre, the point at φ)."""
+    sigma, phi = x
+    p, q = frame_of(u)
+    e = np.cos(sigma) * p + np.sin(sigma) * q
+    centre = a + r * e
+    return e, centre, centre + r * (np.cos(phi) * e + np.sin(phi) * u)
+
+
+def conditions(x: np.ndarray, a: np.ndarray, u: np.ndarray, r: float, B: np.ndarray) -> np.ndarray:
+    """Zero where the wheel's plane holds B and the cable leaves the wheel at a tangent (radius ⟂ free span)."""
+    e, centre, T = wheel(x, a, u, r)
+    return np.array([(B - a) @ np.cross(u, e), (T - centre) @ (T - B)])
+
+
+def shortest_path(a: np.ndarray, u: np.ndarray, r: float, B: np.ndarray) -> tuple[float, np.ndarray]:
+    """The path a → arc → T → B: the tangent points by Newton's method on :func:`conditions` (numerical Jacobian)
+    from several starts, facing B; of the two tangents the one with the shorter path (the cable wraps the wheel
+    from the axis over to B, not the long way round). Returns (length, T)."""
+    p, q = frame_of(u)
+    v = B - a
+    best: tuple[float, np.ndarray] | None = None
+    for phi0 in (-np.pi / 2, 0.0, np.pi / 2, np.pi):
+        x = np.array([np.arctan2(v @ q, v @ p), phi0])
+        for _ in range(50):
+            F = conditions(x, a, u, r, B)
+            J = np.column_stack([(conditions(x + 1e-7 * np.eye(2)[k], a, u, r, B) - F) / 1e-7 for k in range(2)])
+            x = x - np.linalg.solve(J, F)
+        if np.abs(conditions(x, a, u, r, B)).max() > 1e-12:
+            continue
+        e, _, T = wheel(x, a, u, r)
+        wrap = (np.pi - x[1]) % (2 * np.pi)  # from a (at π) back to T
+        length = r * wrap + float(np.linalg.norm(B - T))
+        if (B - a) @ e > 0 and (best is None or length < best[0]):
+            best = (length, T)
+    assert best is not None
+    return best
+
+
+def random_case(rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray, float, np.ndarray]:
+    a = rng.uniform(-3.0, 3.0, 3)
+    u = rng.normal(size=3)
+    u /= np.linalg.norm(u)
+    r = rng.uniform(0.02, 0.15)
+    p, q = frame_of(u)
+    # a platform point ahead of the wheel: away from the axis, not back along the incoming cable
+    B = a + rng.uniform(0.8, 3.0) * (np.cos(s := rng.uniform(0, 2 * np.pi)) * p + np.sin(s) * q) \
+        + rng.uniform(-2.0, 2.0) * u
+    return a, u, r, B
+
+
+def test_lengths_and_directions_equal_the_shortest_path_over_the_wheel() -> None:
+    rng = np.random.default_rng(32)
+    for _ in range(200):
+        a, u, r, B = random_case(rng)
+        length, T = shortest_path(a, u, r, B)
+        g = pulley_geometry(a[None], Pulleys(np.array([r]), u[None]), B[None])
+        assert abs(g.lengths[0] - length) <= 1e-9
+        np.testing.assert_allclose(g.tangent_points[0], T, rtol=0, atol=1e-9)
+        np.testing.assert_allclose(g.free_spans[0] / g.free_lengths[0], (T - B) / np.linalg.norm(T - B),
+                                   rtol=0, atol=1e-9)
+        assert 0.0 < g.wrap[0] < 2 * np.pi
+
+
+def test_no_radius_is_the_point_model() -> None:
+    rng = np.random.default_rng(3)
+    a, B = rng.uniform(-3, 3, (8, 3)), rng.uniform(-1, 1, (8, 3))
+    u = rng.normal(size=(8, 3))
+    u /= np.linalg.norm(u, axis=1, keepdims=True)
+    g = pulley_geometry(a, Pulleys(np.zeros(8), u), B)
+    np.testing.assert_array_equal(g.tangent_points, a)
+    np.testing.assert_array_equal(g.free_spans, a - B)
+    np.testing.assert_array_equal(g.lengths, np.linalg.norm(a - B, axis=1))
+    np.testing.assert_array_equal(g.wrap, np.zeros(8))
+    # and a small radius is close to it
+    small = pulley_geometry(a, Pulleys(np.full(8, 1e-9), u), B)
+    np.testing.assert_allclose(small.lengths, g.lengths, atol=1e-8)
+
+
+@pytest.mark.parametrize("on_axis", [True, False])
+def test_a_platform_point_on_the_swivel_axis_has_a_finite_answer(on_axis: bool) -> None:
+    a, u = np.zeros(3), np.array([0.0, 0.0, -1.0])  # the cable runs down into the pulley
+    B = np.array([0.0, 0.0, -2.0]) if on_axis else np.array([1e-13, 0.0, -2.0])
+    g = pulley_geometry(a[None], Pulleys(np.array([0.05]), u[None]), B[None])
+    assert np.all(np.isfinite(g.lengths))
+    assert np.all(np.isfinite(g.free_spans))
+
+
+# -- a robot with pulleys ---------------------------------------------------------------------------------
+
+
+def pulley_robot() -> Robot:
+    return load_robot("caroca_pulleys")
+
+
+def random_pose(rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
+    return rng.uniform([-1.5, -1.0, 0.5], [1.5, 1.0, 2.5]), rotvec_to_matrix(rng.normal(0.0, 0.2, 3))
+
+
+def test_the_robot_s_kinematics_run_over_its_pulleys() -> None:
+    """inverse_kinematics, WrenchMatrix, wrench_matrices and the winch models' cable_geometry: the pulleys'
+    lengths and free-span directions (W's columns [d; (R b) × d])."""
+    robot = pulley_robot()
+    assert robot.pulleys is not None
+    rng = np.random.default_rng(5)
+    for _ in range(20):
+        p, R = random_pose(rng)
+        arms = robot.platform_points @ R.T
+        g = pulley_geometry(robot.frame_points, robot.pulleys, p + arms)
+        d = g.free_spans / g.free_lengths[:, None]
+        W = np.vstack([d.T, np.cross(arms, d).T])
+        ik = inverse_kinematics(robot, p, R)
+        np.testing.assert_allclose(ik.lengths, g.lengths, rtol=0, atol=1e-12)
+        np.testing.assert_allclose(ik.wrench_matrix, W, rtol=0, atol=1e-12)
+        np.testing.assert_allclose(WrenchMatrix(robot)(p, R), W, rtol=0, atol=1e-12)
+        np.testing.assert_allclose(wrench_matrices(robot, p[None], R)[0], W, rtol=0, atol=1e-12)
+        _, lengths, directions, _, _ = cable_geometry(robot.frame_points, robot.platform_points, p, R,
+                                                      np.zeros(3), np.zeros(3), robot.pulleys)
+        np.testing.assert_allclose(lengths, g.lengths, rtol=0, atol=1e-12)
+        np.testing.assert_allclose(directions, d, rtol=0, atol=1e-12)
+        assert np.all(g.lengths > np.linalg.norm(robot.frame_points - p - arms, axis=1))  # the wrap adds length
+
+
+def test_length_rates_are_the_wrench_matrix_rows_times_the_twist() -> None:
+    """d(length)/dt by central differences along a twist equals −Wᵀ v, over random poses and twists (1e-6)."""
+    robot = pulley_robot()
+    rng = np.random.default_rng(11)
+    h = 1e-6
+    for _ in range(50):
+        p, R = random_pose(rng)
+        v = rng.normal(0.0, 0.5, 6)
+
+        def lengths(s: float, p: np.ndarray = p, R: np.ndarray = R, v: np.ndarray = v) -> np.ndarray:
+            return inverse_kinematics(robot, p + s * v[:3], rotvec_to_matrix(s * v[3:]) @ R).lengths
+
+        numeric = (lengths(h) - lengths(-h)) / (2 * h)
+        W = inverse_kinematics(robot, p, R).wrench_matrix
+        np.testing.assert_allclose(numeric, -W.T @ v, rtol=0, atol=1e-6)
+
+
+def test_a_radius_of_zero_is_the_point_model(tmp_path: Path) -> None:
+    spec = yaml.safe_load((SHIPPED / "robots" / "caroca_pulleys.yaml").read_text())
+    for cable in spec["cables"]:
+        cable["pulley"]["radius"] = 0.0
+    path = tmp_path / "zero.yaml"
+    path.write_text(yaml.safe_dump(spec))
+    zero, plain = load_robot(path), load_robot("caroca")
+    assert zero.pulleys is None
+    p, R = np.array([0.3, -0.2, 1.1]), np.eye(3)
+    np.testing.assert_array_equal(inverse_kinematics(zero, p, R).lengths, inverse_kinematics(plain, p, R).lengths)
+
+
+def test_the_sim_applies_the_cables_along_their_free_spans() -> None:
+    """The ideal sim (Plücker rows through T_i) and the elastic one (cable_geometry): state lengths and rates
+    as the kinematics has them, and one step's acceleration as W f gives it (forward dynamics)."""
+    robot = pulley_robot().with_mass(15.0).replace(cable_damping=0.0)
+    rng = np.random.default_rng(2)
+    p, R = random_pose(rng)
+    twist = np.r_[0.2, -0.1, 0.05, 0.1, -0.2, 0.3]
+    sim = PlatformSim(robot, 1e-4, p, R, twist)
+    s = sim.state()
+    ik = inverse_kinematics(robot, s.position, s.rotation)
+    np.testing.assert_allclose(s.cable_lengths, ik.lengths, rtol=1e-13)
+    np.testing.assert_allclose(s.cable_rates, ik.jacobian @ s.twist, rtol=1e-10, atol=1e-12)
+    f = rng.uniform(50.0, 200.0, robot.m)
+    sim.step(f)
+    expected = forward_dynamics(robot, s.rotation, s.twist, ik.wrench_matrix @ f)
+    measured = (sim.state().twist - s.twist) / 1e-4
+    np.testing.assert_allclose(measured, expected, rtol=1e-10, atol=1e-9)
+
+
+def test_the_models_without_pulleys_say_so(tmp_path: Path) -> None:
+    base = yaml.safe_load((SHIPPED / "scenarios" / "caroca_15kg_pulleys.yaml").read_text())
+    for model in ("ups", "sag"):
+        file = tmp_path / f"{model}.yaml"
+        file.write_text(yaml.safe_dump({**base, "sim": {"cable_model": model}}))
+        with pytest.raises(InputError, match=f"sim.cable_model: {model} .*: a robot with exit pulleys needs ideal, "
+                                             "elastic or winch"):
+            load_scenario(file)
+
+
+def test_a_session_with_pulleys_tracks() -> None:
+    """caroca_15kg_pulleys as separate processes: sim and controller both model the pulleys."""
+    proc = cdpr("run", "caroca_15kg_pulleys", timeout=300)
+    assert proc.returncode == 0, proc.stderr[-3000:]
+    s = last_json_line(proc.stdout)
+    assert s["exit_ok"]
+    assert s["max_position_error"] < 1e-4, s  # as caroca_15kg (0.067 mm)
+    assert (s["clamped_commands"], s["infeasible_commands"]) == (0, 0)
+
+
+def test_session_info_carries_the_pulleys_to_a_remote_controller() -> None:
+    robot = pulley_robot()
+    again = robot_from_summary(robot.summary())
+    assert again.pulleys is not None
+    np.testing.assert_array_equal(again.pulleys.radius, robot.pulleys.radius)
+    np.testing.assert_array_equal(again.pulleys.axis, robot.pulleys.axis)
+    p, R = np.array([0.2, 0.1, 1.2]), rotvec_to_matrix([0.1, 0.0, 0.2])
+    np.testing.assert_array_equal(WrenchMatrix(again)(p, R), WrenchMatrix(robot)(p, R))
