@@ -10,17 +10,23 @@ import numpy as np
 import pytest
 import yaml
 
+from cdpr import recording
 from cdpr.config.robot import load_robot
-from cdpr.config.scenario import load_scenario
-from cdpr.errors import InputError
-from cdpr.mechanics.dynamics import forward_dynamics
+from cdpr.config.scenario import SagSpec
+from cdpr.mechanics.catenary import cable_planes, platform_forces, solve_catenary
+from cdpr.mechanics.dynamics import forward_dynamics, gravity_wrench
 from cdpr.mechanics.kinematics import WrenchMatrix, cable_geometry, inverse_kinematics
 from cdpr.mechanics.pulley import Pulleys, pulley_geometry
 from cdpr.mechanics.robot import Robot
 from cdpr.mechanics.rotation import rotvec_to_matrix
+from cdpr.mechanics.tda import make_tda
 from cdpr.mechanics.workspace import wrench_matrices
 from cdpr.protocol.session import robot_from_summary
+from cdpr.tools.report import read_recording
 from cdpr_sim.core import PlatformSim
+from cdpr_sim.elastic import ElasticSim
+from cdpr_sim.sag import SagSim
+from cdpr_sim.ups import UpsSim
 from conftest import cdpr, last_json_line
 
 SHIPPED = Path(__file__).parents[1] / "shared" / "cdpr"
@@ -204,14 +210,46 @@ def test_the_sim_applies_the_cables_along_their_free_spans() -> None:
     np.testing.assert_allclose(measured, expected, rtol=1e-10, atol=1e-9)
 
 
-def test_the_models_without_pulleys_say_so(tmp_path: Path) -> None:
+def test_the_paper_s_u_p_s_legs_swivel_over_their_pulleys() -> None:
+    """ups: a pulley leg is swivel → fork → axle → arm → prismatic along the free span, ball-joined to the
+    platform, the wrap's torque r f on the axle. Its lengths are the kinematics' (the span plus the wrap) and,
+    driven by the same tensions, it moves as the ideal model over the same pulleys (as closely as the U-P-S
+    legs without pulleys do, the links' mass)."""
+    robot = pulley_robot().with_mass(15.0).replace(tmin=1.0, tmax=6500.0)
+    p0 = np.array([0.9, 0.9, 0.2])
+    ideal, ups = PlatformSim(robot, 1e-3, p0), UpsSim(robot, 1e-3, p0)
+    np.testing.assert_allclose(ups.state().cable_lengths, inverse_kinematics(robot, p0, np.eye(3)).lengths,
+                               rtol=0, atol=1e-12)
+    W = inverse_kinematics(robot, p0, np.eye(3)).wrench_matrix
+    f0 = make_tda("qp").solve(W, -gravity_wrench(robot), robot.tmin, robot.tmax).tensions
+    for k in range(100):
+        f = f0 * (1.0 + 0.2 * np.sin(0.01 * k + np.arange(robot.m)))
+        ideal.step(f)
+        ups.step(f)
+    a, b = ideal.state(), ups.state()
+    assert np.abs(a.position - p0).max() > 1e-4  # it moved
+    assert np.abs(a.position - b.position).max() < 1e-5  # 2.6e-6 m, as for caroca's U-P-S legs
+    lengths = inverse_kinematics(robot, b.position, b.rotation).lengths
+    assert np.abs(b.cable_lengths - lengths).max() < 1e-5
+    assert ups.closure_errors().max() < 1e-5
+
+
+def _session_positions(tmp_path: Path, model: str) -> np.ndarray:
     base = yaml.safe_load((SHIPPED / "scenarios" / "caroca_15kg_pulleys.yaml").read_text())
-    for model in ("ups", "sag"):
-        file = tmp_path / f"{model}.yaml"
-        file.write_text(yaml.safe_dump({**base, "sim": {"cable_model": model}}))
-        with pytest.raises(InputError, match=f"sim.cable_model: {model} .*: a robot with exit pulleys needs ideal, "
-                                             "elastic or winch"):
-            load_scenario(file)
+    file = tmp_path / f"{model}.yaml"
+    file.write_text(yaml.safe_dump({**base, "name": f"pulleys_{model}", "duration": 4.0,
+                                    "sim": {"cable_model": model}}))
+    rrd = tmp_path / f"{model}.rrd"
+    proc = cdpr("run", str(file), "--in-process", "--rrd", str(rrd), timeout=300)
+    assert proc.returncode == 0, proc.stderr[-3000:]
+    return read_recording(rrd).get(recording.ACTUAL_POSITION).values
+
+
+def test_the_u_p_s_session_over_pulleys_follows_the_ideal_one(tmp_path: Path) -> None:
+    """The paper's cable model cross-check (docs/results.md: within 0.1 mm), over exit pulleys."""
+    ideal, ups = _session_positions(tmp_path, "ideal"), _session_positions(tmp_path, "ups")
+    assert ideal.shape == ups.shape
+    assert np.abs(ideal - ups).max() < 1e-4
 
 
 def test_a_session_with_pulleys_tracks() -> None:
@@ -232,3 +270,28 @@ def test_session_info_carries_the_pulleys_to_a_remote_controller() -> None:
     np.testing.assert_array_equal(again.pulleys.axis, robot.pulleys.axis)
     p, R = np.array([0.2, 0.1, 1.2]), rotvec_to_matrix([0.1, 0.0, 0.2])
     np.testing.assert_array_equal(WrenchMatrix(again)(p, R), WrenchMatrix(robot)(p, R))
+
+
+def test_the_stretching_and_sagging_models_hang_their_cables_from_the_pulleys() -> None:
+    """Held at their start lengths, the elastic and the sag models keep the pulley robot still; the sag model's
+    catenaries hang from the tangent points T_i with l0 less the wrap, and their platform ends carry the weight."""
+    robot = pulley_robot().with_mass(15.0).replace(tmin=1.0, tmax=6500.0)  # (caroca_15kg's limits)
+    p0 = np.array([0.9, 0.9, 0.2])
+    params = SagSpec(mass_per_length=0.05)
+    for sim in (ElasticSim(robot, 1e-3, p0, command="lengths"),
+                SagSim(robot, 1e-3, p0, params=params, command="lengths")):
+        l0 = sim.encoder_lengths().copy()
+        for _ in range(300):
+            sim.step(l0)
+        s = sim.state()
+        assert np.abs(s.position - p0).max() < 1e-9, type(sim).__name__
+        assert sim.fallbacks == 0
+        np.testing.assert_allclose(s.cable_lengths, inverse_kinematics(robot, s.position, s.rotation).lengths,
+                                   rtol=1e-12)
+    arms = robot.platform_points @ s.rotation.T
+    over = pulley_geometry(robot.frame_points, robot.pulleys, s.position + arms)
+    span, rise, e_h = cable_planes(over.tangent_points, s.position + arms)
+    cat = solve_catenary(span, rise, sim.encoder_lengths() - (over.lengths - over.free_lengths),
+                         params.weight_per_length, params.EA)
+    pull = platform_forces(cat, e_h)
+    np.testing.assert_allclose(pull.sum(axis=0), [0.0, 0.0, robot.mass * 9.81], atol=1e-3)

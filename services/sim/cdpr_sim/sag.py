@@ -2,6 +2,10 @@
 
 Force law (cable i between its frame point a_i and its platform point t + R b_i)
 --------------------------------------------------------------------------------
+Over an exit pulley the catenary hangs from the pulley's tangent point T_i (for the straight cable's
+geometry, :mod:`cdpr.mechanics.pulley`) and the cable on the wheel, r β, lies on it: l0 less that length
+hangs.
+
 The cable hangs in the vertical plane through its ends as an elastic catenary (:mod:`cdpr.mechanics.catenary`)
 of weight per length ``w = mass_per_length·g`` and axial stiffness ``EA``, quasi-statically: the cable's
 own inertia is neglected (its mass is a few percent of the platform's), its shape is solved afresh at
@@ -93,7 +97,8 @@ class SagSim(WinchSim):
 
     def _law(self, g: Geometry, l0: Array, l0_rate: Array) -> CableForces:
         p = self.params
-        span, rise, e_h = cable_planes(self._a, g.points)
+        span, rise, e_h = cable_planes(g.anchors, g.points)
+        l0 = np.asarray(l0, dtype=float) - g.wrapped  # the catenary hangs from the pulley (wrap: straight on it)
         try:
             sol = solve_catenary(span, rise, l0, p.weight_per_length, p.EA, guess=self._warm)
         except CatenaryError as exc:  # not expected in the domain (module docstring): cable by cable
@@ -116,7 +121,7 @@ class SagSim(WinchSim):
         solved = np.isfinite(H)
         self._fallback(reason)
         self._warm = (H, V0)  # (NaN: a cold start for those next time)
-        straight = self._straight(g, l0, l0_rate)
+        straight = self._straight(g, l0 + g.wrapped, l0_rate)  # (l0 here is the catenary's, off the wheel)
         sol = CatenaryForces(np.where(solved, H, 0.0), np.where(solved, V0, 0.0), np.asarray(l0, dtype=float),
                              np.full(m, p.weight_per_length), 0)
         law = self._forces(g, sol, e_h, l0_rate)
@@ -139,7 +144,7 @@ class SagSim(WinchSim):
         taut = np.flatnonzero(f > 0.0)
         if taut.size == 0:
             return CableForces(forces, platform, frame), l0
-        span, rise, e_h = cable_planes(self._a[taut], g.points[taut])
+        span, rise, e_h = cable_planes(g.anchors[taut], g.points[taut])
         warm = self._warm_tension
         sol = solve_catenary_tension(span, rise, f[taut], p.weight_per_length, p.EA, end=p.tension_at,
                                      guess=None if warm is None else (warm[0][taut], warm[1][taut]),
@@ -152,7 +157,7 @@ class SagSim(WinchSim):
         forces[done] = platform_forces(sol, e_h)[solved]
         platform[done] = sol.tension_platform[solved]
         frame[done] = sol.tension_frame[solved]
-        l0[done] = sol.unstretched_length[solved]
+        l0[done] = sol.unstretched_length[solved] + g.wrapped[done]  # and the cable on the pulley's wheel
         vertical = sol.vertical_frame if at_frame else sol.vertical_platform
         phi_all[done] = np.arctan2(vertical, sol.horizontal)[solved]
         if not solved.all():  # outside the domain (module docstring): the straight elastic cable, that tension
@@ -161,7 +166,7 @@ class SagSim(WinchSim):
             platform[out] = frame[out] = f[out]
             self._fallback(f"no catenary has the commanded tension at the {p.tension_at} end of cable(s) "
                            f"{out.tolist()} ({', '.join(f'{x:.4g}' for x in f[out])} N): straight cable(s) used")
-        self._warm_tension = (phi_all, l0.copy())
+        self._warm_tension = (phi_all, l0 - g.wrapped)  # (the solver's, which hangs from the pulley)
         return CableForces(forces, platform, frame), l0
 
     def _holding_floor(self, g: Geometry) -> Array:

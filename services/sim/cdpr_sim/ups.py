@@ -21,6 +21,18 @@ the prismatic joint actuated", "virtual links … defined with negligible masses
   ``[0, tmax]`` by :func:`cdpr_sim.core.clamp_tensions` (DART does not clamp FORCE joints) — the axis
   points away from a_i, so a positive tension pulls the platform towards a_i, as in ``PlatformSim``.
 
+Exit pulleys
+------------
+A cable over a swivelling exit pulley (:mod:`cdpr.mechanics.pulley`) is the chain the pulley makes: a
+``RevoluteJoint`` about the swivel axis u_i at a_i → link ``fork`` → a ``RevoluteJoint`` about the wheel's axle
+(normal to the wheel's plane, through its centre a_i + r e_i) → link ``arm`` → the ``PrismaticJoint`` at the
+tangent point, along the free span → link ``lower``, ball-joined to the platform as above. The prismatic
+coordinate is the free span; the axle's angle q moves the tangent point round the wheel, so the cable's length
+is the span plus r (β0 − q). The wrapped cable holds the arm: the axle gets the torque r (f_i + c·l̇_i) that
+balances the span's pull at the tangent point (the prismatic axis stays tangent by construction). The swivel
+gets the passive damping of a universal joint's axis. At every reset the frames are set from the pulley's
+closed form at the initial pose (every angle 0).
+
 Damping, and why it is applied explicitly
 -----------------------------------------
 ``robot.cable_damping`` c acts on the prismatic joint (force ``−c·l̇_i``), ``robot.passive_damping`` c_p
@@ -83,6 +95,7 @@ import numpy as np
 from numpy.typing import ArrayLike
 
 from cdpr.config.scenario import Scenario
+from cdpr.mechanics.pulley import Pulleys, pulley_geometry
 from cdpr.mechanics.robot import Robot
 from cdpr.mechanics.rotation import Array, readonly
 from cdpr.protocol import State
@@ -105,11 +118,17 @@ LINK_RADIUS = 0.005  # m, the links' inertia is a solid sphere's of this radius 
 
 @dataclass(frozen=True)
 class _Leg:
-    """One cable: U joint at a_i → upper link → prismatic joint → lower link (ball-joined to the platform)."""
+    """One cable: U joint at a_i → upper link → prismatic joint → lower link (ball-joined to the platform).
+
+    Over an exit pulley (module docstring, "Exit pulleys"): swivel joint at a_i → fork → axle joint at the
+    wheel's centre → arm → prismatic joint at the tangent point → lower link; ``universal`` is then the swivel
+    and ``axle`` the axle joint."""
 
     skeleton: dart.dynamics.Skeleton
-    universal: dart.dynamics.UniversalJoint
+    universal: dart.dynamics.Joint
     lower: dart.dynamics.BodyNode
+    axle: dart.dynamics.RevoluteJoint | None = None
+    prismatic: dart.dynamics.PrismaticJoint | None = None
 
 
 @dataclass(frozen=True)
@@ -156,7 +175,11 @@ class UpsSim:
         link_inertia = dart.dynamics.Inertia(
             self.link_mass, np.zeros(3), np.eye(3) * 0.4 * self.link_mass * LINK_RADIUS**2
         )
-        self._legs = tuple(self._make_leg(i, link_inertia) for i in range(robot.m))
+        pulleys = robot.pulleys
+        self._radius = np.zeros(robot.m) if pulleys is None else np.array(pulleys.radius, dtype=float)
+        self._wrap0 = np.zeros(robot.m)  # each pulley leg's wrapped angle at the axle's zero (set by reset)
+        self._legs = tuple(self._make_pulley_leg(i, link_inertia) if self._radius[i] > 0.0
+                           else self._make_leg(i, link_inertia) for i in range(robot.m))
         self._tensions = readonly(np.zeros(robot.m))
         self._snap: _Snapshot | None = None
         self.reset(position, rotation, twist)
@@ -182,6 +205,24 @@ class UpsSim:
         self._world.addSkeleton(skeleton)
         return _Leg(skeleton, universal, lower)
 
+    def _make_pulley_leg(self, i: int, inertia: dart.dynamics.Inertia) -> _Leg:
+        skeleton = dart.dynamics.Skeleton(f"cable_{i}")
+        swivel, fork = skeleton.createRevoluteJointAndBodyNodePair()
+        swivel.setAxis(np.array([0.0, 0.0, 1.0]))  # the swivel axis u (the joint frame's z, set by reset)
+        fork.setName(f"cable_{i}_fork")
+        fork.setInertia(inertia)
+        axle, arm = skeleton.createRevoluteJointAndBodyNodePair(fork)
+        axle.setAxis(np.array([0.0, -1.0, 0.0]))  # normal to the wheel's plane (x = e, z = u): φ grows with it
+        arm.setName(f"cable_{i}_arm")
+        arm.setInertia(inertia)
+        prismatic, lower = skeleton.createPrismaticJointAndBodyNodePair(arm)
+        prismatic.setActuatorType(dart.dynamics.ActuatorType.FORCE)
+        prismatic.setAxis(np.array([0.0, 0.0, 1.0]))  # along the free span (its frame, set by reset)
+        lower.setName(f"cable_{i}_lower")
+        lower.setInertia(inertia)
+        self._world.addSkeleton(skeleton)
+        return _Leg(skeleton, swivel, lower, axle, prismatic)
+
     @classmethod
     def from_scenario(cls, scenario: Scenario) -> UpsSim:
         """The sim of ``scenario``: its robot and dt, at its initial pose."""
@@ -204,16 +245,19 @@ class UpsSim:
         ends = self._platform_points_world()
         vt, w = self._body.getLinearVelocity(), self._body.getAngularVelocity()
         R_dart = self._body.getTransform().rotation()
-        for leg, a, b, end in zip(self._legs, self._a, self._b, ends, strict=True):
-            vec = end - a
-            length = float(np.linalg.norm(vec))
-            if length < 1e-9:
-                raise ValueError("a cable has zero length at this pose")
-            frame = dart.math.Isometry3()
-            frame.set_rotation(_frame_with_z(vec / length))
-            frame.set_translation(a)
-            leg.universal.setTransformFromParentBodyNode(frame)
-            leg.skeleton.setPositions(np.array([0.0, 0.0, length]))
+        for i, (leg, a, b, end) in enumerate(zip(self._legs, self._a, self._b, ends, strict=True)):
+            if leg.axle is not None:
+                self._place_pulley_leg(i, leg, a, end)
+            else:
+                vec = end - a
+                length = float(np.linalg.norm(vec))
+                if length < 1e-9:
+                    raise ValueError("a cable has zero length at this pose")
+                frame = dart.math.Isometry3()
+                frame.set_rotation(_frame_with_z(vec / length))
+                frame.set_translation(a)
+                leg.universal.setTransformFromParentBodyNode(frame)
+                leg.skeleton.setPositions(np.array([0.0, 0.0, length]))
             # Inverse velocity kinematics: the leg's end moves with its platform point t + R b.
             point_velocity = vt + np.cross(w, R_dart @ b)
             leg.skeleton.setVelocities(np.linalg.solve(leg.lower.getLinearJacobian(), point_velocity))
@@ -223,6 +267,36 @@ class UpsSim:
         self._snap = None
         self.step_count = 0
         self._tensions = readonly(np.zeros(self.robot.m))
+
+    def _place_pulley_leg(self, i: int, leg: _Leg, a: Array, end: Array) -> None:
+        """A pulley leg's joint frames for the platform point ``end``: the swivel's z along u with x the wheel's
+        direction e (angle 0), the axle at the wheel's centre (angle 0), the prismatic joint at the tangent
+        point along the free span, its length the span's."""
+        pulleys, axle, prismatic = self.robot.pulleys, leg.axle, leg.prismatic
+        assert pulleys is not None
+        assert axle is not None
+        assert prismatic is not None
+        one = Pulleys(pulleys.radius[i:i + 1], pulleys.axis[i:i + 1])
+        g = pulley_geometry(a[None], one, end[None])
+        r, u, e = float(self._radius[i]), one.axis[0], g.swivel[0]
+        if g.free_lengths[0] < 1e-9:
+            raise ValueError("a cable has zero length at this pose")
+        swivel = dart.math.Isometry3()
+        swivel.set_rotation(np.column_stack((e, np.cross(u, e), u)))
+        swivel.set_translation(a)
+        leg.universal.setTransformFromParentBodyNode(swivel)
+        centre = dart.math.Isometry3()
+        centre.set_translation(np.array([r, 0.0, 0.0]))
+        axle.setTransformFromParentBodyNode(centre)
+        phi = float(np.pi - g.wrap[0])  # the tangent point's angle, from e towards u
+        radial = np.array([np.cos(phi), 0.0, np.sin(phi)])  # in the fork's frame (x = e, y = u × e, z = u)
+        span = np.array([np.sin(phi), 0.0, -np.cos(phi)])  # towards B: the wheel's tangent, clockwise from a
+        tangent = dart.math.Isometry3()
+        tangent.set_rotation(_frame_with_z(span))
+        tangent.set_translation(r * radial)
+        prismatic.setTransformFromParentBodyNode(tangent)
+        self._wrap0[i] = g.wrap[0]
+        leg.skeleton.setPositions(np.array([0.0, 0.0, float(g.free_lengths[0])]))
 
     def _platform_points_world(self) -> Array:
         tf = self._body.getTransform()
@@ -235,8 +309,11 @@ class UpsSim:
         legs = np.array([leg.skeleton.getPositions() for leg in self._legs])
         leg_v = np.array([leg.skeleton.getVelocities() for leg in self._legs])
         twist = np.concatenate((self._body.getLinearVelocity(), self._body.getAngularVelocity()))
+        # a cable's length: its leg's prismatic span, and over a pulley the wrap r β, β = β0 − q_axle
+        lengths = legs[:, 2] + self._radius * (self._wrap0 - legs[:, 1])
+        rates = leg_v[:, 2] - self._radius * leg_v[:, 1]
         snap = _Snapshot(
-            *(readonly(x) for x in (tf.translation(), tf.rotation(), twist, legs[:, 2], leg_v[:, 2], leg_v))
+            *(readonly(x) for x in (tf.translation(), tf.rotation(), twist, lengths, rates, leg_v))
         )
         self._snap = snap
         return snap
@@ -284,8 +361,10 @@ class UpsSim:
         damping = self.robot.cable_damping * s.rates
         c_p = self.robot.passive_damping
         forces = np.empty((self.robot.m, 3))
-        forces[:, :2] = -c_p * s.leg_velocities[:, :2]  # universal joints
+        forces[:, :2] = -c_p * s.leg_velocities[:, :2]  # universal joints (a pulley leg's swivel)
         forces[:, 2] = -(applied + damping)  # the prismatic axis points away from a_i
+        # over a pulley the cable on the wheel holds the arm: the torque r f about the axle (module docstring)
+        forces[:, 1] = np.where(self._radius > 0.0, self._radius * (applied + damping), forces[:, 1])
         for leg, f in zip(self._legs, forces, strict=True):
             leg.skeleton.setForces(f)
         # Spherical joints: −c_p (ω_platform − ω_lower) on the platform, the opposite on the lower link.

@@ -78,6 +78,7 @@ from cdpr.config.scenario import Scenario, StretchSpec, WinchSpec
 from cdpr.mechanics.dynamics import gravity_wrench, mass_matrix
 from cdpr.mechanics.kinematics import cable_geometry, inverse_kinematics
 from cdpr.mechanics.outputs import COMMAND_KINDS, CommandKind
+from cdpr.mechanics.pulley import pulley_geometry
 from cdpr.mechanics.robot import Robot
 from cdpr.mechanics.rotation import Array, cross_rows, readonly
 from cdpr.mechanics.tda import make_tda
@@ -161,9 +162,11 @@ class Geometry:
     twist: Array  # (6,) [v; ω]
     points: Array  # (m, 3) t + R b_i, the platform's attach points
     arms: Array  # (m, 3) R b_i
-    lengths: Array  # (m,) chord lengths ‖a_i − t − R b_i‖
-    directions: Array  # (m, 3) unit chords d_i, platform → frame
+    lengths: Array  # (m,) chord lengths ‖a_i − t − R b_i‖ (over an exit pulley: the wrapped arc plus the span)
+    directions: Array  # (m, 3) unit chords d_i, platform → frame (over a pulley: the free span's)
     rates: Array  # (m,) l̇ = −(d_i · v + ((R b_i) × d_i) · ω)
+    anchors: Array  # (m, 3) where each cable's free span starts at the frame: a_i, or its pulley's tangent point
+    wrapped: Array  # (m,) the length of cable on each exit pulley's wheel (0 without one), m
 
 
 @dataclass(frozen=True)
@@ -234,6 +237,7 @@ class WinchSim(ABC):
         self._fell_back = False
         self._a = np.array(robot.frame_points, dtype=float)
         self._b = np.array(robot.platform_points, dtype=float)
+        self._no_wrap = readonly(np.zeros(robot.m))
         p0, R0, v0 = start_pose(robot, position, rotation, twist)
         if command == "tensions":
             self.substeps = 1
@@ -365,7 +369,13 @@ class WinchSim(ABC):
         v, w = self._body.getLinearVelocity(), self._body.getAngularVelocity()
         arms, lengths, d, _, rates = cable_geometry(self._a, self._b, p, R, v, w, self.robot.pulleys)
         points = p + arms
-        g = Geometry(*(readonly(x) for x in (p, R, np.concatenate((v, w)), points, arms, lengths, d, rates)))
+        if self.robot.pulleys is None:
+            anchors, wrapped = self._a, self._no_wrap
+        else:
+            over = pulley_geometry(self._a, self.robot.pulleys, points)
+            anchors, wrapped = over.tangent_points, over.lengths - over.free_lengths
+        g = Geometry(*(readonly(x) for x in (p, R, np.concatenate((v, w)), points, arms, lengths, d, rates,
+                                             anchors, wrapped)))
         self._geometry = g
         return g
 

@@ -39,10 +39,6 @@ class PlatformOverride(Strict):
     payload: FiniteFloat = Field(0.0, ge=0.0, description="point mass rigidly attached at the centre of mass, kg")
 
 
-# Cable models that cannot take exit pulleys yet, and why.
-NO_PULLEYS = {"ups": "pivots each leg at a fixed frame point", "sag": "hangs each catenary from a fixed frame point"}
-
-
 class LimitsOverride(Strict):
     """The scenario's tension limits: each one given replaces the robot's for every cable (per-cable limits of
     the robot file included); one left out keeps the robot's."""
@@ -384,9 +380,6 @@ def scenario_from_spec(spec: ScenarioSpec, where: str, base_dir: Path | None = N
         robot = load_robot(robot_ref, spec.cable_set)
     except InputError as exc:
         raise InputError(f"{where}: robot: {exc}") from None
-    if robot.pulleys is not None and spec.sim.cable_model in NO_PULLEYS:
-        raise InputError(f"{where}: sim.cable_model: {spec.sim.cable_model} {NO_PULLEYS[spec.sim.cable_model]}: "
-                         "a robot with exit pulleys needs ideal, elastic or winch")
     if spec.platform.mass is not None:
         robot = robot.with_mass(spec.platform.mass)
     robot = robot.with_payload(spec.platform.payload)
