@@ -19,6 +19,22 @@ import zenoh
 
 KP, KD, GRAVITY = 400.0, 40.0, 9.81  # 1/s², 1/s (critically damped at 20 rad/s), m/s²
 ROWS = {"spatial": [0, 1, 2, 3, 4, 5], "planar": [0, 2, 4], "point_mass": [0, 1, 2]}
+PLANE_ROWS = {"xz": [0, 2, 4], "xy": [0, 1, 5]}  # a planar robot's rows, by its plane
+
+
+def exit_points(a, B, pulleys):
+    """Where each cable leaves the frame for the platform points B: a_i, or over an exit pulley its tangent point
+    (docs/robots.md, "Exit pulleys")."""
+    if pulleys is None:
+        return a
+    r, u = np.array(pulleys["radius"]), np.array(pulleys["axis"])
+    v = B - a
+    along = np.einsum("ij,ij->i", v, u)
+    across = v - along[:, None] * u
+    n = np.linalg.norm(across, axis=1)
+    e = across / np.maximum(n, 1e-300)[:, None]
+    phi = np.arctan2(along, n - r) + np.arccos(r / np.hypot(n - r, along))
+    return a + r[:, None] * ((1 + np.cos(phi))[:, None] * e + np.sin(phi)[:, None] * u)
 
 
 def quat_to_matrix(q):
@@ -57,8 +73,10 @@ class Controller:
         self.mass, self.inertia = robot["mass"], np.array(robot["inertia"])
         limits = robot["cable_limits"]  # each cable's own [tmin, tmax]
         self.tmin, self.tmax = np.array(limits["tmin"]), np.array(limits["tmax"])
+        self.pulleys = robot.get("pulleys")
         three = info.get("controller", {}).get("variant") == "3dof"
-        self.rows = [0, 1, 2] if three else ROWS[robot["mode"]]
+        rows = PLANE_ROWS[robot.get("plane", "xz")] if robot["mode"] == "planar" else ROWS[robot["mode"]]
+        self.rows = [r for r in rows if r < 3] if three and robot.get("plane") == "xy" else [0, 1, 2] if three else rows
 
     def __call__(self, state, setpoint):
         p, R = np.array(state["pose"][:3]), quat_to_matrix(state["pose"][3:])
@@ -68,7 +86,7 @@ class Controller:
         w = np.r_[self.mass * accel[:3], R @ self.inertia @ R.T @ accel[3:]]  # mass-scaled PD
         w[2] += self.mass * GRAVITY  # the cables also carry the weight
         rb = self.b @ R.T  # platform points in the world frame, relative to the centre of mass
-        d = self.a - p - rb
+        d = exit_points(self.a, p + rb, self.pulleys) - p - rb
         d /= np.linalg.norm(d, axis=1, keepdims=True)  # unit vectors from the platform to the frame
         W = np.vstack([d.T, np.cross(rb, d).T])  # column i: the wrench of a unit tension in cable i
         return tensions(W[self.rows], w[self.rows], self.tmin, self.tmax)

@@ -70,6 +70,7 @@ def test_the_sim_clamps_each_cable_to_its_own_tmax() -> None:
     uniform = load_robot("caroca")
     assert isinstance(tension_ceiling(uniform), float)
     assert clamp_tensions(uniform.tmax + 1.0, tension_ceiling(uniform))[2] == 8
+    assert clamp_tensions(np.array([5.0, 150.0]), 100)[0].tolist() == [5.0, 100.0]  # any number as tmax
 
 
 @st.composite

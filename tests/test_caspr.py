@@ -5,6 +5,7 @@ here from the XML alone; then a short session of each."""
 from __future__ import annotations
 
 import json
+import re
 import xml.etree.ElementTree as ET
 from pathlib import Path
 
@@ -201,3 +202,77 @@ def test_a_home_its_cables_cannot_hold_is_refused_with_the_way_out(tmp_path: Pat
     assert proc.returncode == 2
     assert "home: no tensions in [120000, 1.2e+06] N" in proc.stderr
     assert "--home X Y Z" in proc.stderr
+
+
+def _variant(tmp_path: Path, name: str, bodies: tuple[str, str] | None = None,
+             cables: tuple[str, str] | None = None, every: bool = False) -> Path:
+    """A copy of fixture ``name``'s model with text replaced in its bodies and cables files (the first place, or
+    ``every`` place); returns its folder."""
+    folder = tmp_path / f"{name}_variant"
+    folder.mkdir()
+    for kind, change in (("bodies", bodies), ("cables", cables)):
+        text = (FIXTURES / name / f"{name}_{kind}.xml").read_text()
+        if change is not None:
+            assert change[0] in text
+            text = text.replace(*change) if every else text.replace(*change, 1)
+        (folder / f"m_{kind}.xml").write_text(text)
+    return folder
+
+
+def test_a_vertical_planar_model_a_point_mass_and_an_inertia_about_the_joint(tmp_path: Path) -> None:
+    """PLANAR_XZ (q = [x, z, θ_y]), T_XYZ with every cable at the COM, and an inertia given about the joint frame
+    (ref="joint": moved to the COM by the parallel-axis theorem), each against numbers computed here."""
+    # PLANAR_XZ: CASPR's planar example turned into the x-z plane (every (x, y, 0) point as (x, 0, y))
+    folder = _variant(tmp_path, "planar_xy_example", bodies=("PLANAR_XY", "PLANAR_XZ"))
+    text = (folder / "m_cables.xml").read_text()
+    text = re.sub(r"<location>(\S+) (\S+) (\S+)</location>", lambda m: f"<location>{m[1]} {m[3]} {m[2]}</location>",
+                  text)
+    (folder / "m_cables.xml").write_text(text)
+    out = tmp_path / "xz.yaml"
+    proc = cdpr("import", "caspr", str(folder), "-o", str(out), timeout=60)
+    assert proc.returncode == 0, proc.stderr
+    robot = load_robot(out)
+    assert (robot.mode, robot.plane) == ("planar", "xz")
+    np.testing.assert_array_equal(robot.home_position, [0.5, 0.0, 0.5])  # q_initial [0.5, 0.5, 0]: x, z, θ
+    q = np.array([0.55, 0.45, 0.1])
+    p, R = np.array([q[0], 0.0, q[1]]), elementary(1, q[2])
+    ends = re.findall(r"<location>(\S+) (\S+) (\S+)</location>", text)
+    cable_set = ends[: 2 * robot.m]
+    a = np.array(cable_set[0::2], dtype=float)
+    b = np.array(cable_set[1::2], dtype=float)
+    np.testing.assert_allclose(inverse_kinematics(robot, p, R).lengths, np.linalg.norm(a - p - b @ R.T, axis=1),
+                               rtol=1e-12)
+    # T_XYZ with every platform point at the COM: a point-mass robot
+    folder = _variant(tmp_path, "nist_robocrane", bodies=('type="SPATIAL_EULER_XYZ" q_initial="0 0 1.5 0 0 0" '
+                                                          'q_min="-3.0 -3.0 0.0 -3.1416 -3.1416 -3.1416" '
+                                                          'q_max="3.0 3.0 3.0 3.1416 3.1416 3.1416"',
+                                                          'type="T_XYZ" q_initial="0 0 1.5" q_min="-3 -3 0" '
+                                                          'q_max="3 3 3"'))
+    cables = re.sub(r"(<link>1</link><location>)[^<]*", r"\g<1>0 0 0", (folder / "m_cables.xml").read_text())
+    (folder / "m_cables.xml").write_text(cables)
+    out = tmp_path / "pm.yaml"
+    proc = cdpr("import", "caspr", str(folder), "-o", str(out), timeout=60)
+    assert proc.returncode == 0, proc.stderr
+    point = load_robot(out)
+    assert point.mode == "point_mass"
+    np.testing.assert_array_equal(point.platform_points, np.zeros((6, 3)))
+    # ... and with its platform points off the COM: refused
+    folder = _variant(tmp_path, "segesta", bodies=("SPATIAL_EULER_XYZ", "T_XYZ"))
+    text = (folder / "m_bodies.xml").read_text()
+    (folder / "m_bodies.xml").write_text(re.sub(r'q_initial="(\S+) (\S+) (\S+) \S+ \S+ \S+"', r'q_initial="\1 \2 \3"',
+                                                text.replace('q_min="-1.0 -1.0 0.0 -3.1416 -3.1416 -3.1416"',
+                                                             'q_min="-1 -1 0"').replace(
+                                                    'q_max="1.0 1.0 1.0 3.1416 3.1416 3.1416"', 'q_max="1 1 1"')))
+    proc = cdpr("import", "caspr", str(folder), "-o", str(tmp_path / "no.yaml"), timeout=60)
+    assert proc.returncode == 2
+    assert "joint type 'T_XYZ' with platform points off the centre of mass" in proc.stderr
+    # an inertia about the joint frame: IPAnema 2's COM is 0.5 m above its joint frame
+    folder = _variant(tmp_path, "ipanema_2", bodies=('<inertia ref="com">', '<inertia ref="joint">'))
+    text = (folder / "m_bodies.xml").read_text().replace("<Ixx>1.0</Ixx>", "<Ixx>5.0</Ixx>").replace(
+        "<Iyy>1.0</Iyy>", "<Iyy>6.0</Iyy>")
+    (folder / "m_bodies.xml").write_text(text)
+    out = tmp_path / "joint.yaml"
+    proc = cdpr("import", "caspr", str(folder), "-o", str(out), timeout=60)
+    assert proc.returncode == 0, proc.stderr
+    # about the COM: I − m (|c|² 1 − c cᵀ), m = 10 kg, c = (0, 0, 0.5) m
+    np.testing.assert_allclose(load_robot(out).inertia, np.diag([5.0 - 2.5, 6.0 - 2.5, 1.0]), rtol=0, atol=1e-12)

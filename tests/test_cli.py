@@ -84,7 +84,7 @@ def test_pose_angles_take_either_convention_and_say_which() -> None:
     default = _json("ik", "caroca", "--pose", "0.1", "0", "1.5", str(a), str(b), str(c))
     assert default == _json("ik", "caroca", "--pose", "0.1", "0", "1.5", str(a), str(b), str(c), "--angles", "rpy")
     tilted = _json("workspace", "caroca", "--step", "1", "--orientation", str(a), str(b), str(c), "--angles", "xyz")
-    assert tilted["angles"] == "xyz"
+    assert tilted["orientation_xyz"] == [a, b, c]
 
 
 @pytest.mark.parametrize(("command", "flags"), [("ik", ("--pose", "--angles")),

@@ -13,7 +13,7 @@ import yaml
 from cdpr import recording
 from cdpr.config.robot import load_robot
 from cdpr.mechanics.kinematics import inverse_kinematics
-from cdpr.mechanics.rotation import rpy_to_matrix
+from cdpr.mechanics.rotation import quat_to_matrix, rpy_to_matrix
 from cdpr.mechanics.trajectory import PlatformPoint, QuinticWaypoints
 from cdpr.tools.report import read_recording
 from conftest import cdpr
@@ -97,3 +97,28 @@ def test_the_offset_robot_moves_as_the_robot_described_about_its_com(tmp_path: P
     assert a.shape[0] > 2000
     assert np.abs(a - b).max() <= 1e-9
     assert np.abs(a[-1] - goal).max() < 1e-3  # and it went where it was sent
+
+
+def test_a_turning_offset_platform_s_frame_follows_the_waypoints(tmp_path: Path) -> None:
+    """Waypoints of the platform frame with a turn: the session's COM follows p(t) + R(t) c, so the frame's origin,
+    recovered from the recorded COM pose as p_com − R c, follows the quintic through the waypoints (to the
+    tracking error; the wrong sign or no conversion would be 2|c| or |c| = 7 cm off at the end)."""
+    home = np.array(yaml.safe_load(CUBE.read_text())["home"]["position"]) - np.array(C)
+    waypoints = [{"t": 0.0, "position": home.tolist()},
+                 {"t": 2.0, "position": (home + np.array([0.2, -0.1, 0.1])).tolist(), "rpy": [0.1, -0.05, 0.3]}]
+    scenario = {"name": "cube_offset_turn", "robot": str(offset_robot(tmp_path)), "dt": 0.001, "duration": 2.5,
+                "trajectory": {"type": "quintic", "waypoints": waypoints}, "controller": {"kp": 400.0, "kd": 40.0}}
+    file = tmp_path / "turn.yaml"
+    file.write_text(yaml.safe_dump(scenario))
+    rrd = tmp_path / "turn.rrd"
+    proc = cdpr("run", str(file), "--in-process", "--rrd", str(rrd), timeout=300)
+    assert proc.returncode == 0, proc.stderr[-3000:]
+    data = read_recording(rrd)
+    positions, quaternions = data.get(recording.ACTUAL_POSITION), data.get(recording.ACTUAL_QUATERNION)
+    frame = QuinticWaypoints([0.0, 2.0], [w["position"] for w in waypoints], [[0.0, 0.0, 0.0], [0.1, -0.05, 0.3]])
+    errors = []
+    for t, p, q in zip(positions.t, positions.values, quaternions.values, strict=True):
+        origin = p - quat_to_matrix(q) @ C
+        errors.append(float(np.linalg.norm(origin - frame.sample(t).position)))
+    assert max(errors) < 1e-3, max(errors)
+    assert errors[-1] < 1e-4

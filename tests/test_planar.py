@@ -28,7 +28,8 @@ def test_a_horizontal_robot_controls_x_y_and_the_turn_about_z() -> None:
     assert controlled_rows(robot, "3dof") == (0, 1)  # the forces in its plane
     assert np.array_equal(robot.inertia, np.eye(3) * 10.0)  # one number: the moment about the normal
     vertical = load_robot("kntu_planar")
-    assert (vertical.plane, vertical.controlled_rows, controlled_rows(vertical, "3dof")) == ("xz", (0, 2, 4), (0, 2))
+    assert (vertical.plane, vertical.controlled_rows, controlled_rows(vertical, "3dof")) == ("xz", (0, 2, 4),
+                                                                                             (0, 1, 2))
     again = robot_from_summary(robot.summary())
     assert (again.plane, again.controlled_rows) == ("xy", (0, 1, 5))
     assert "plane" not in load_robot("caroca").summary()
@@ -69,7 +70,9 @@ def _robot_file(tmp_path: Path, change: dict) -> Path:
     ("change", "message"),
     [
         ({"cables.2.frame": [1.0, 1.0, 0.1]}, "cables: a planar robot lives in the x–y plane: every z must be 0"),
-        ({"home.position": [0.5, 0.5, 0.2]}, "cables: a planar robot lives in the x–y plane: every z must be 0"),
+        ({"home.position": [0.5, 0.5, 0.2]}, "home.position: a planar robot lives in the x–y plane: every z must "
+                                             "be 0"),
+        ({"platform.com": [0.0, 0.0, 0.1]}, "platform.com: a planar robot lives in the x–y plane: every z must be 0"),
         ({"mode": "spatial", "plane": None, "platform.inertia": 10.0}, "platform.inertia: one number is a planar"),
         ({"mode": "point_mass", "plane": "xy"}, "plane: only a planar robot has a plane"),
         ({"plane": "yz"}, "plane"),

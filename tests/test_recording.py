@@ -203,6 +203,13 @@ def test_cable_strips_join_the_kinematics_attach_points(name: str) -> None:
         if robot.pulleys is None:
             assert np.allclose(strips[j, :, 1], robot.frame_points)
             assert np.allclose(np.linalg.norm(strips[j, :, 1] - strips[j, :, 0], axis=1), k.lengths, atol=1e-12)
+        else:  # on its wheel (centre a + r e, e towards B across the swivel axis u), the span tangent to it
+            B, T, a = strips[j, :, 0], strips[j, :, 1], robot.frame_points
+            u, r = robot.pulleys.axis, robot.pulleys.radius
+            across = (B - a) - np.einsum("ij,ij->i", B - a, u)[:, None] * u
+            centre = a + r[:, None] * across / np.linalg.norm(across, axis=1, keepdims=True)
+            assert np.allclose(np.linalg.norm(T - centre, axis=1), r, atol=1e-12)
+            assert np.allclose(np.einsum("ij,ij->i", T - centre, T - B), 0.0, atol=1e-12)
 
 
 def test_tension_colors_run_from_tmin_to_tmax() -> None:

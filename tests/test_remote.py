@@ -311,14 +311,17 @@ def _up_with(example: str, session_id: str, duration: str | None, tmp_path: Path
 
 
 @pytest.mark.slow
-def test_both_example_controllers_complete_a_15kg_session_alike(session_id: str, tmp_path: Path) -> None:
+@pytest.mark.parametrize("scenario", ["caroca_15kg", "caroca_15kg_pulleys"])
+def test_both_example_controllers_complete_a_15kg_session_alike(scenario: str, session_id: str,
+                                                                tmp_path: Path) -> None:
     """The SDK example (cdpr's kinematics, QP tensions) and the plain one (written from docs/protocol.md
-    with its own quaternions, wrench matrix and least-norm tensions) drive the sim along the same path."""
+    with its own quaternions, wrench matrix and least-norm tensions) drive the sim along the same path; over
+    exit pulleys too (the plain one's tangent points from docs/robots.md's closed form)."""
     runs = {}
     for i, example in enumerate(("remote_controller.py", "plain_zenoh_controller.py")):
         d = tmp_path / str(i)
         d.mkdir()
-        s, remote_log = _up_with(example, f"{session_id}{i}", "1.5", d)
+        s, remote_log = _up_with(example, f"{session_id}{i}", "1.5", d, scenario=scenario)
         assert s["exit_ok"] is True
         assert s["steps"] == s["total_steps"] == 1500
         assert s["rms_position_error"] < 1e-3  # ~0.3 mm: PD without acceleration feedforward

@@ -2,6 +2,9 @@
 
     cdpr up caroca_15kg --without controller --ros2                    # the session waits for its controller
     RMW_IMPLEMENTATION=rmw_zenoh_cpp python3 examples/ros2/pd_controller.py   # ROS 2 Jazzy or later, sourced
+
+The cables leave the frame at its frame points: for a robot with exit pulleys (session_info's "pulleys"), take
+each cable's direction from where it leaves its pulley instead (docs/robots.md, "Exit pulleys").
 """
 import json
 
@@ -31,8 +34,9 @@ def tensions(info, pose, twist, pose_d, twist_d, accel_d):
     d = np.array(r["frame_points"]) - p - b
     d /= np.linalg.norm(d, axis=1, keepdims=True)  # unit cable directions, platform -> frame
     w = np.vstack([d.T, np.cross(b, d).T])  # the wrench matrix: W t is the cables' wrench on the platform
-    n = w.shape[1]
-    return lsq_linear(np.vstack([w, 1e-3 * np.eye(n)]), np.r_[wrench, np.zeros(n)], bounds=r["tension_limits"]).x
+    n, limits = w.shape[1], r["cable_limits"]  # each cable's own [tmin, tmax]
+    return lsq_linear(np.vstack([w, 1e-3 * np.eye(n)]), np.r_[wrench, np.zeros(n)],
+                      bounds=(limits["tmin"], limits["tmax"])).x
 
 
 def main():

@@ -115,7 +115,8 @@ def ibvs_from_scenario(scenario: Any) -> IbvsCore:
     spec = scenario.spec.controller.ibvs
     camera = next(c for c in scenario.cameras if c.name == spec.camera)
     if spec.goal is not None:
-        goal_p, goal_R = np.array(spec.goal.position, dtype=float), rpy_to_matrix(*spec.goal.rpy)
+        goal_R = rpy_to_matrix(*spec.goal.rpy)
+        goal_p = scenario.robot.com_pose(spec.goal.position, goal_R)  # the platform frame's pose → the COM's
     else:
         last = scenario.trajectory.sample(scenario.trajectory.duration)
         goal_p, goal_R = last.position, last.rotation

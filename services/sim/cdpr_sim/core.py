@@ -101,8 +101,9 @@ def clamp_tensions(commanded: np.ndarray, tmax: float | np.ndarray) -> tuple[np.
     f = np.asarray(commanded, dtype=float)
     if f.ndim == 1 and f.size:  # the usual case, a few numbers: reductions on a list beat numpy's
         values = f.tolist()
-        if not math.isnan(sum(values)) and min(values) >= 0.0 and (
-                max(values) <= tmax if isinstance(tmax, float) else all(map(operator.le, values, tmax.tolist()))):
+        within = (max(values) <= tmax if not isinstance(tmax, np.ndarray)
+                  else all(map(operator.le, values, tmax.tolist())))
+        if not math.isnan(sum(values)) and min(values) >= 0.0 and within:
             return f.copy(), 0, 0  # no NaN (it would make the sum NaN) and nothing to clamp
     if np.isnan(f).any():
         raise ValueError("tensions contain NaN")

@@ -18,6 +18,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from cdpr.mechanics.camera import Camera, project
+from cdpr.mechanics.pulley import pulley_geometry
 from cdpr.mechanics.robot import Robot
 from cdpr.mechanics.rotation import Array
 
@@ -108,7 +109,9 @@ class Renderer:
                 continue  # facing away, or crossing the camera's near plane
             faces.append((distance, quad, float(np.dot(normal, to_camera)) / distance))
         anchors = p + self.robot.platform_points @ R.T
-        for a, b in zip(anchors, self.robot.frame_points, strict=True):  # under the platform: hidden behind it
+        exits = self.robot.frame_points if self.robot.pulleys is None else pulley_geometry(  # or their pulleys'
+            self.robot.frame_points, self.robot.pulleys, anchors).tangent_points
+        for a, b in zip(anchors, exits, strict=True):  # under the platform: hidden behind it
             self._line(img, a, b, cam_p, cam_R, CABLE_COLOR, 1)
         for _, quad, light in sorted(faces, key=lambda f: -f[0]):
             uv = project(quad, cam_p, cam_R, k, near=NEAR).pixels

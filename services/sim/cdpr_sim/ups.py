@@ -4,7 +4,7 @@ Model (seed paper §3.1: "a parallel robot with universal-prismatic-spherical (U
 the prismatic joint actuated", "virtual links … defined with negligible masses")
 ------------------------------------------------------------------------------------------------------
 * The platform is the same free rigid body as in ``PlatformSim`` (a ``FreeJoint``; a ``PlanarJoint``
-  in the ZX plane for planar robots), its own skeleton.
+  in the robot's plane for planar robots), its own skeleton.
 * Cable i is a leg, its own skeleton hung from the world: a ``UniversalJoint`` centred at the frame
   point a_i → link ``upper`` (centre of mass at a_i) → a ``PrismaticJoint`` along the cable → link
   ``lower`` (centre of mass at the far end). The prismatic coordinate is the cable length l_i: the

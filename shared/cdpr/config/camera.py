@@ -11,6 +11,7 @@ from __future__ import annotations
 import math
 from typing import Literal
 
+from numpy.typing import ArrayLike
 from pydantic import Field, FiniteFloat, PositiveFloat, field_validator, model_validator
 
 from cdpr.config.loading import Strict
@@ -92,8 +93,8 @@ class CameraSpec(Strict):
         """Steps between two frames at ``dt``."""
         return frame_every(self.rate, dt)
 
-    def build(self, dt: float) -> Camera:
-        return camera_from_spec(self.model_dump(), dt)
+    def build(self, dt: float, com_offset: ArrayLike | None = None) -> Camera:
+        return camera_from_spec(self.model_dump(), dt, com_offset)
 
 
 def check_rate(camera: CameraSpec, dt: float) -> None:

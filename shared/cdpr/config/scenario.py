@@ -421,7 +421,7 @@ def scenario_from_spec(spec: ScenarioSpec, where: str, base_dir: Path | None = N
     steps = round(duration / spec.dt)
     if steps < 1:
         raise InputError(f"{where}: duration: shorter than one step of dt = {spec.dt}")
-    cameras = tuple(c.build(spec.dt) for c in spec.sim.cameras)
+    cameras = tuple(c.build(spec.dt, robot.com_offset) for c in spec.sim.cameras)
     for camera in cameras:
         check_markers_seen(camera, trajectory, duration, where)
     return Scenario(

@@ -148,26 +148,31 @@ def frame_every(rate: float, dt: float) -> int:
     return max(1, round(1.0 / (rate * dt)))
 
 
-def camera_from_spec(spec: Mapping[str, Any], dt: float) -> Camera:
+def camera_from_spec(spec: Mapping[str, Any], dt: float, com_offset: ArrayLike | None = None) -> Camera:
     """The :class:`Camera` of a camera as a scenario writes it (``sim.cameras``: name, mount, intrinsics,
     distortion, rate, pixel_sigma, dropout, latency_steps, markers, image), already validated — the scenario's
-    loader (:mod:`cdpr.config.camera`) and a remote controller reading ``session/info`` both build it here."""
+    loader (:mod:`cdpr.config.camera`) and a remote controller reading ``session/info`` both build it here.
+
+    A mount and markers on the platform are in the robot file's platform frame; ``com_offset`` (the robot's,
+    where that frame has the centre of mass) moves them to the COM's frame, the model's body frame."""
     mount, i, markers = spec["mount"], spec["intrinsics"], spec["markers"]
     if mount.get("rpy") is not None:
         mount_rotation = rpy_to_matrix(*mount["rpy"])
     else:
         mount_rotation = look_at(mount["position"], mount["look_at"], mount.get("up", (0.0, 0.0, 1.0)))
     points = np.array(markers["points"], dtype=float).reshape(-1, 3)
+    c = np.zeros(3) if com_offset is None else np.asarray(com_offset, dtype=float)
+    on_platform, markers_on_platform = mount["body"] == "platform", markers.get("frame", "platform") == "platform"
     k1, k2, t1, t2, k3 = (float(x) for x in spec.get("distortion", (0.0,) * 5))
     return Camera(
         name=str(spec["name"]),
         intrinsics=Intrinsics(float(i["fx"]), float(i["fy"]), float(i["cx"]), float(i["cy"]), int(i["width"]),
                               int(i["height"]), (k1, k2, t1, t2, k3)),
-        on_platform=mount["body"] == "platform",
-        mount_position=np.array(mount["position"], dtype=float),
+        on_platform=on_platform,
+        mount_position=np.array(mount["position"], dtype=float) - (c if on_platform else 0.0),
         mount_rotation=mount_rotation,
-        markers=points,
-        markers_on_platform=markers.get("frame", "platform") == "platform",
+        markers=points - c if markers_on_platform else points,
+        markers_on_platform=markers_on_platform,
         marker_ids=tuple(markers.get("ids") or (f"m{j}" for j in range(len(points)))),
         every=frame_every(float(spec["rate"]), dt),
         pixel_sigma=float(spec.get("pixel_sigma", 0.0)),

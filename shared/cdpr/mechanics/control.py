@@ -49,10 +49,10 @@ class Gains:
 
 
 def controlled_rows(robot: Robot, variant: Variant) -> tuple[int, ...]:
-    """Rows of the 6×m wrench matrix (and of the 6-vectors) that ``variant`` controls on ``robot`` (a planar
-    robot's ``3dof``: the forces in its plane)."""
-    if robot.mode == "planar" and variant == "3dof":
-        return tuple(r for r in robot.controlled_rows if r < 3)
+    """Rows of the 6×m wrench matrix (and of the 6-vectors) that ``variant`` controls on ``robot`` (``3dof``: the
+    forces; in the horizontal x–y plane the two in it, the weight being out of the plane)."""
+    if robot.mode == "planar" and robot.plane == "xy" and variant == "3dof":
+        return (0, 1)
     if variant == "3dof" or robot.mode == "point_mass":
         return (0, 1, 2)
     return robot.controlled_rows

@@ -189,15 +189,17 @@ def check_robot(robot: Robot, where: str) -> None:
     if robot.mode == "point_mass" and np.abs(robot.platform_points).max() > 1e-12:
         raise InputError(f"{where}: cables: a point_mass robot needs every platform point at [0, 0, 0]")
     if robot.mode == "planar":
-        pts = np.vstack([robot.frame_points, robot.platform_points, robot.home_position[None, :]])
-        axis = "xyz"[robot.normal_axis]
-        if np.abs(pts[:, robot.normal_axis]).max() > 1e-12:
-            raise InputError(f"{where}: cables: a planar robot lives in the {robot.plane[0]}–{robot.plane[1]} plane: "
-                             f"every {axis} must be 0")
+        n, axis, plane = robot.normal_axis, "xyz"[robot.normal_axis], f"{robot.plane[0]}–{robot.plane[1]}"
+        for field, pts in (("platform.com", robot.com_offset[None, :]), ("home.position", robot.home_position[None, :]),
+                           ("cables", np.vstack([robot.frame_points, robot.platform_points]))):
+            if np.abs(pts[:, n]).max() > 1e-12:
+                raise InputError(f"{where}: {field}: a planar robot lives in the {plane} plane: every {axis} must be 0")
     ik = inverse_kinematics(robot, robot.home_position, robot.home_rotation)
-    if np.any(ik.lengths < 1e-9):
-        i = int(np.argmin(ik.lengths))
-        raise InputError(f"{where}: cables.{i}: zero cable length at the home pose")
+    free = np.linalg.norm(ik.vectors, axis=1)  # (over a pulley: NaN with the platform point on its wheel)
+    if not np.all(free >= 1e-9):
+        i = int(np.flatnonzero(~(free >= 1e-9))[0])
+        what = "zero cable length" if robot.pulleys is None else "zero free length (the platform point on its pulley)"
+        raise InputError(f"{where}: cables.{i}: {what} at the home pose")
     W = ik.wrench_matrix[list(robot.controlled_rows), :]
     rank = int(np.linalg.matrix_rank(W, tol=1e-9 * max(1.0, float(np.abs(W).max()))))
     if rank < robot.dof:

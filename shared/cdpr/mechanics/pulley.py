@@ -72,9 +72,9 @@ def pulley_geometry(frame_points: ArrayLike, pulleys: Pulleys, platform_world: A
     on_axis = n < 1e-12
     e = np.where(on_axis[..., None], pulleys.perpendicular(), across / np.where(on_axis, 1.0, n)[..., None])
     bx = n - r
-    with np.errstate(invalid="ignore", divide="ignore"):  # a platform point on the wheel: NaN, as a zero length
+    with np.errstate(invalid="ignore", divide="ignore"):  # a platform point on or in the wheel (d ≤ r): NaN
         d = np.hypot(bx, along)
-        phi = np.arctan2(along, bx) + np.arccos(np.clip(r / d, -1.0, 1.0))
+        phi = np.arctan2(along, bx) + np.arccos(r / d)
     has = r > 0.0
     beta = np.where(has, np.pi - phi, 0.0)
     wheel = a + r[:, None] * ((1.0 + np.cos(phi))[..., None] * e + np.sin(phi)[..., None] * u)

@@ -147,7 +147,8 @@ class SessionInfo:
         """The scenario's cameras (``sim.cameras``) by name: intrinsics, mount, markers, frame period, latency —
         what a controller needs to read their frames (``sim/camera/<name>``). Empty without cameras."""
         try:
-            return {c["name"]: camera_from_spec(c, self.dt) for c in self.raw.get("sim", {}).get("cameras", [])}
+            return {c["name"]: camera_from_spec(c, self.dt, self.robot.com_offset)
+                    for c in self.raw.get("sim", {}).get("cameras", [])}
         except (KeyError, TypeError, ValueError, AttributeError) as exc:
             raise ProtocolError(f"session/info: sim.cameras: {exc}") from None
 

@@ -116,7 +116,8 @@ _STATE_CHANNELS = {
         "cable_tmax": {"type": "array", "items": _NUM, "description": "each cable's upper limit, N (only with "
                        "per-cable limits)"},
     }),
-    LENGTHS: ("cdpr.CableLengths", "geometric cable lengths ‖a_i − t − R b_i‖", {}),
+    LENGTHS: ("cdpr.CableLengths", "geometric cable lengths ‖a_i − t − R b_i‖ (over an exit pulley: the wrapped arc "
+                                   "plus the free span)", {}),
     COMMAND_TIMING: ("cdpr.CommandTiming", "how old the command that acted over [t − dt, t] was, and the watchdog", {}),
 }
 

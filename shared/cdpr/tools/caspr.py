@@ -185,6 +185,9 @@ def read_model(bodies: Path, cables: Path, cable_set: str | None = None) -> Casp
             out.append({"name": c["name"], "frame": c["frame"], "platform": _clean(b), "tmin": c["tmin"],
                         "tmax": c["tmax"]})
         out_sets[set_id] = out
+    if mode == "point_mass" and any(np.abs(c["platform"]).max() > 1e-12 for s in out_sets.values() for c in s):
+        raise InputError(f"{bodies}: joint type 'T_XYZ' with platform points off the centre of mass: cdpr's "
+                         "point_mass robots have every cable at the COM (the platform cannot turn)")
     kinds = sorted({c["type"] for s in sets.values() for c in s} - {"cable_ideal"})
     if kinds:
         notes.append(f"cable types {', '.join(kinds)} were read as ideal cables (straight, massless, inextensible)")

@@ -156,7 +156,8 @@ def rrd_to_mcap(rrd: str | Path, out: str | Path) -> dict[str, Any]:
         robot = robot.replace(frame_min=extras.frame_box[0], frame_max=extras.frame_box[1])
     from cdpr.config.camera import CameraSpec
 
-    cameras = tuple(CameraSpec.model_validate(c).build(dt) for c in info.get("sim", {}).get("cameras", []))
+    cameras = tuple(CameraSpec.model_validate(c).build(dt, robot.com_offset)
+                    for c in info.get("sim", {}).get("cameras", []))
     sink = FoxgloveSink(robot, session, mcap=dst, planned_path=extras.planned_path, cameras=cameras)
     try:
         counts = _feed(sink, data, extras, dt, m, scene_every, path_every)

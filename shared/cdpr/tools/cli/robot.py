@@ -253,7 +253,7 @@ def workspace(robot: str, payload: float, mass: float | None, step: float,
     out: dict[str, Any] = {
         "robot": r.name, "mass": r.mass, "payload": payload, "tmin": _number_or_list(lo),
         "tmax": _number_or_list(hi),
-        "orientation": list(orientation), "angles": angles, "step": step, "spacing": ws.spacing.tolist(),
+        f"orientation_{angles}": list(orientation), "step": step, "spacing": ws.spacing.tolist(),
         "grid": list(ws.shape),
         "points": int(ws.points.shape[0]), "feasible": int(ws.feasible.sum()), "fraction": ws.fraction,
         "bounding_box": None if box is None else {"min": box[0].tolist(), "max": box[1].tolist()},
