@@ -35,10 +35,6 @@ class Pulleys:
     radius: Array
     axis: Array
 
-    @property
-    def any(self) -> bool:
-        return bool(np.any(self.radius > 0.0))
-
     def perpendicular(self) -> Array:
         """For each axis, a unit vector normal to it: the wheel's direction when B lies on the swivel axis."""
         u = self.axis
