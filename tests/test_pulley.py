@@ -155,10 +155,11 @@ def test_the_robot_s_kinematics_run_over_its_pulleys() -> None:
         np.testing.assert_allclose(ik.wrench_matrix, W, rtol=0, atol=1e-12)
         np.testing.assert_allclose(WrenchMatrix(robot)(p, R), W, rtol=0, atol=1e-12)
         np.testing.assert_allclose(wrench_matrices(robot, p[None], R)[0], W, rtol=0, atol=1e-12)
-        _, lengths, directions, _, _ = cable_geometry(robot.frame_points, robot.platform_points, p, R,
+        _, lengths, directions, _, _, spans = cable_geometry(robot.frame_points, robot.platform_points, p, R,
                                                       np.zeros(3), np.zeros(3), robot.pulleys)
         np.testing.assert_allclose(lengths, g.lengths, rtol=0, atol=1e-12)
         np.testing.assert_allclose(directions, d, rtol=0, atol=1e-12)
+        np.testing.assert_allclose(spans, g.free_spans, rtol=0, atol=1e-12)
         assert np.all(g.lengths > np.linalg.norm(robot.frame_points - p - arms, axis=1))  # the wrap adds length
 
 

@@ -335,10 +335,12 @@ class PlatformSim:
                 rx, ry, rz, x, y, z = positions
                 twist = velocities
             qx, qy, qz, qw = rotvec_quat(rx, ry, rz)
-            features = (qx * qx, qy * qy, qz * qz, qx * qy, qx * qz, qy * qz, qx * qw, qy * qw, qz * qw, x, y, z, 1.0)
-            unnormalised = (self._line_map @ np.array(features)).reshape(-1, 6)  # rows [a_i × l_i; l_i]
-            lengths = np.sqrt(np.square(unnormalised) @ _FORCE_HALF)
-            if self._pulleys is not None:  # each cable's line leaves its pulley at T_i: rows [T_i × d_i; d_i]·l_i
+            if self._pulleys is None:
+                features = (qx * qx, qy * qy, qz * qz, qx * qy, qx * qz, qy * qz, qx * qw, qy * qw, qz * qw, x, y, z,
+                            1.0)
+                unnormalised = (self._line_map @ np.array(features)).reshape(-1, 6)  # rows [a_i × l_i; l_i]
+                lengths = np.sqrt(np.square(unnormalised) @ _FORCE_HALF)
+            else:  # each cable's line leaves its pulley at T_i: rows [T_i × d_i; d_i]·l_i
                 unnormalised, lengths = self._over_pulleys((x, y, z), quat_matrix(qx, qy, qz, qw))
             self._now = ((x, y, z, qx, qy, qz, qw), twist, unnormalised, lengths)
         return self._now

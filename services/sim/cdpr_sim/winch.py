@@ -78,7 +78,6 @@ from cdpr.config.scenario import Scenario, StretchSpec, WinchSpec
 from cdpr.mechanics.dynamics import gravity_wrench, mass_matrix
 from cdpr.mechanics.kinematics import cable_geometry, inverse_kinematics
 from cdpr.mechanics.outputs import COMMAND_KINDS, CommandKind
-from cdpr.mechanics.pulley import pulley_geometry
 from cdpr.mechanics.robot import Robot
 from cdpr.mechanics.rotation import Array, cross_rows, readonly
 from cdpr.mechanics.tda import make_tda
@@ -367,13 +366,13 @@ class WinchSim(ABC):
         tf = self._body.getTransform()
         p, R = tf.translation(), tf.rotation()
         v, w = self._body.getLinearVelocity(), self._body.getAngularVelocity()
-        arms, lengths, d, _, rates = cable_geometry(self._a, self._b, p, R, v, w, self.robot.pulleys)
+        arms, lengths, d, _, rates, spans = cable_geometry(self._a, self._b, p, R, v, w, self.robot.pulleys)
         points = p + arms
         if self.robot.pulleys is None:
             anchors, wrapped = self._a, self._no_wrap
-        else:
-            over = pulley_geometry(self._a, self.robot.pulleys, points)
-            anchors, wrapped = over.tangent_points, over.lengths - over.free_lengths
+        else:  # the free spans start where the cables leave their pulleys; the rest of each length is on the wheel
+            anchors = points + spans
+            wrapped = lengths - np.sqrt(np.einsum("ij,ij->i", spans, spans))
         g = Geometry(*(readonly(x) for x in (p, R, np.concatenate((v, w)), points, arms, lengths, d, rates,
                                              anchors, wrapped)))
         self._geometry = g

@@ -103,18 +103,19 @@ class WrenchMatrix:
 def cable_geometry(
     frame_points: Array, platform_points: Array, position: Array, R: Array, v: Array, omega: Array,
     pulleys: Pulleys | None = None,
-) -> tuple[Array, Array, Array, Array, Array]:
-    """The cables of a moving platform: ``(arms, lengths, directions, moments, rates)``.
+) -> tuple[Array, Array, Array, Array, Array, Array]:
+    """The cables of a moving platform: ``(arms, lengths, directions, moments, rates, spans)``.
 
     ``arms`` (m, 3) are R b_i, ``lengths`` (m,) ‖l_i‖, ``directions`` (m, 3) the unit d_i (rows of W's
     force block), ``moments`` (m, 3) (R b_i) × d_i (rows of W's moment block) and ``rates`` (m,) the
     length rates l̇ = J v = −(d_i · v + ((R b_i) × d_i) · ω), for the platform at (position, R) moving
     with linear velocity ``v`` and angular velocity ``omega`` (world frame). What a simulator reads
-    off its body every step; no checks (the lengths must not be zero). Over exit ``pulleys``: the lengths include
-    the wrapped arcs, the directions are the free spans' (and l̇ = J v still holds exactly).
+    off its body every step; no checks (the lengths must not be zero). ``spans`` (m, 3) are the vectors l_i from
+    the platform points to the frame. Over exit ``pulleys``: the lengths include the wrapped arcs, the spans and
+    directions are the free spans' from where each cable leaves its pulley (and l̇ = J v still holds exactly).
     """
-    arms, _, lengths, d, moments = _chords(frame_points, platform_points, position, R, pulleys)
-    return arms, lengths, d, moments, -(d @ v + moments @ omega)
+    arms, spans, lengths, d, moments = _chords(frame_points, platform_points, position, R, pulleys)
+    return arms, lengths, d, moments, -(d @ v + moments @ omega), spans
 
 
 def inverse_kinematics(robot: Robot, position: ArrayLike, R: ArrayLike | None = None) -> CableKinematics:
