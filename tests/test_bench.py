@@ -299,9 +299,13 @@ def test_the_ros2_controller_in_the_bench(bench: tuple[dict, str]) -> None:
         assert ros[kind]["rms_position_error"] < 1e-3
     assert ros["ratio"] == pytest.approx(ros["ros2"]["steps_per_s"] / ros["cdpr"]["steps_per_s"])
     by = ros["ros2"]["cpu_us_per_step_by_process"]
-    assert _positive(by["ros2"])
+    assert "ros2" not in by  # the ros2 node in the sim's process
+    assert "sim" not in by
+    assert _positive(by["sim+ros2"])
     assert _positive(by["ros2_controller"])
-    assert ros["ros2"]["ros2_side_cpu_us_per_step"] == pytest.approx(by["ros2"] + by["ros2_controller"])
+    node = by["sim+ros2"] - ros["cdpr"]["cpu_us_per_step_by_process"]["sim"]
+    assert ros["ros2"]["ros2_node_cpu_us_per_step"] == pytest.approx(node)
+    assert ros["ros2"]["ros2_side_cpu_us_per_step"] == pytest.approx(node + by["ros2_controller"])
     assert "8 a ROS 2 controller" in text
     assert "ros2_controller/cdpr_controller>=0.5" in r["targets"]
 

@@ -3,8 +3,10 @@ interpreter (``CDPR_START_METHOD=spawn``); either way the same processes, names 
 
 from __future__ import annotations
 
+import contextlib
 import os
 import subprocess
+import sys
 import time
 from collections.abc import Callable
 from pathlib import Path
@@ -17,10 +19,10 @@ LOOP = {"clock", "sim", "trajectory", "controller"}
 
 
 def _while_running(args: list[str], look: Callable[[], bool], env: dict[str, str] | None = None,
-                   every: float = 0.05) -> tuple[str, int]:
-    """Run ``cdpr run ARGS``, calling ``look`` every ``every`` s while it runs until it returns True (at most
+                   every: float = 0.05, command: str = "run") -> tuple[str, int]:
+    """Run ``cdpr COMMAND ARGS``, calling ``look`` every ``every`` s while it runs until it returns True (at most
     2 000 times); the summary line's stdout and the launcher's pid, once it has exited 0."""
-    run = subprocess.Popen([*CDPR, "run", *args], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+    run = subprocess.Popen([*CDPR, command, *args], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
                            env=env)
     try:
         for _ in range(2000):
@@ -75,6 +77,50 @@ def test_forked_and_spawned_services_are_the_same_processes_with_the_same_states
     assert spawned["exit_ok"]
     assert forked["steps"] == spawned["steps"] == 3000
     assert forked["state_digest"] == spawned["state_digest"]
+
+
+def test_the_ros2_node_runs_in_the_sim_s_process_unless_the_sim_is_elsewhere() -> None:
+    from cdpr.config.scenario import load_scenario
+    from cdpr.tools.launch import RunOptions, node_argv
+
+    sc = load_scenario("caroca_15kg")
+    argv = node_argv(sc, RunOptions(ros2=True, without=("controller",)), "tcp/127.0.0.1:7447")
+    assert set(argv) == {"clock", "trajectory", "sim+ros2"}
+    assert argv["sim+ros2"][-2:] == ["--ros-namespace", "/cdpr"]  # the controller's role: no --observe
+    assert node_argv(sc, RunOptions(ros2=True), "tcp/127.0.0.1:7447")["sim+ros2"][-1] == "--observe"
+    alone = node_argv(sc, RunOptions(ros2=True, without=("controller", "sim")), "tcp/127.0.0.1:7447")
+    assert set(alone) == {"clock", "trajectory", "ros2"}
+
+
+def test_a_spawned_sim_and_ros2_node_share_a_process(session_id: str) -> None:
+    """``python -m cdpr.runtime sim+ros2``: the composition as a new interpreter (CDPR_START_METHOD=spawn)."""
+    seen: set[str] = set()
+
+    def look() -> bool:
+        for pid in processes_mentioning(f"--session {session_id}"):
+            with contextlib.suppress(OSError):
+                cmdline = Path(f"/proc/{pid}/cmdline").read_bytes().replace(b"\0", b" ").decode().split()
+                if "cdpr.runtime" in cmdline:
+                    seen.add(cmdline[cmdline.index("cdpr.runtime") + 1])
+        return "sim+ros2" in seen
+
+    out, _ = _while_running(["caroca_15kg", "--duration", "1", "--ros2", "--quiet", "--session", session_id], look,
+                            dict(os.environ, CDPR_START_METHOD="spawn"), command="up")
+    s = last_json_line(out)
+    assert s["exit_codes"] == {"clock": 0, "sim+ros2": 0, "trajectory": 0, "controller": 0}
+    assert s["steps"] == 1000
+    assert "sim+ros2" in seen
+    assert not seen & {"sim", "ros2"}
+
+
+@pytest.mark.parametrize(("name", "says"), [("sim+sim", "'sim+sim': a node named twice"),
+                                            ("sim+nope", "no node called 'nope' is registered")])
+def test_a_bad_composition_is_refused_in_one_line(name: str, says: str) -> None:
+    proc = subprocess.run([sys.executable, "-m", "cdpr.runtime", name, "caroca_15kg"], capture_output=True, text=True,
+                          timeout=60)
+    assert proc.returncode == 2
+    assert proc.stderr.startswith(f"cdpr: error: {says}")
+    assert len(proc.stderr.strip().splitlines()) == 1
 
 
 def test_an_unknown_start_method_is_refused_in_one_line() -> None:

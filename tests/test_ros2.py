@@ -26,11 +26,12 @@ from hypothesis import strategies as st
 from rosbags.typesys import Stores, get_typestore
 
 from cdpr.config.scenario import load_scenario
-from cdpr.protocol import Keys, Setpoint, State, Status
+from cdpr.protocol import Command, Keys, Setpoint, Setpoints, State, Status
 from cdpr.ros2 import graph
 from cdpr.ros2 import messages as ros
 from cdpr.ros2.cdr import CdrError, stamp
 from cdpr.ros2.topics import COMMANDS, PUBLISHED
+from cdpr.runtime.transport import Event
 from cdpr.tools.bench import ros2_controller
 from cdpr.tools.bench.ros2_messages import make_cache
 from cdpr_ros2.core import Bridge, RosCommandError
@@ -202,6 +203,56 @@ def test_a_step_is_every_topic_stamped_with_the_state_time(scenario: object) -> 
     ahead = inverse_kinematics(robot, p + h * v, rotvec_to_matrix(h * w)).lengths
     behind = inverse_kinematics(robot, p - h * v, rotvec_to_matrix(-h * w)).lengths
     np.testing.assert_allclose(js.velocity, (ahead - behind) / (2 * h), atol=1e-8)
+
+
+class _Sent:
+    """Where a ros2 node's messages go in the unit test below: (topic, stamp) in the order they are put."""
+
+    def __init__(self, log: list[tuple[str, object]], name: str) -> None:
+        self.log, self.name, self.matched = log, name, True
+
+    def put(self, payload: bytes) -> None:
+        if self.name == "command":
+            self.log.append(("command", Command.decode(payload).step))
+        else:
+            msg = STORE.deserialize_cdr(payload, PUBLISHED[self.name].ros_type)
+            self.log.append((self.name, msg.header.stamp.nanosec))
+
+
+def test_the_ros2_node_sends_setpoint_k_once_state_k_minus_1_is_answered(scenario: object) -> None:
+    """Setpoint k goes out before state k (docs/ros2.md, Topics): as the command for state k − 1 comes; with its
+    state when it was not known then; again with a state the clock asks for again."""
+    from cdpr_ros2.node import Ros2Node
+
+    node = Ros2Node(scenario, Keys("unit"))  # type: ignore[arg-type]
+    log: list[tuple[str, object]] = []
+    wanted = ("joint_states", "pose", "setpoint_pose")
+    node.ros = {name: _Sent(log, name) for name in wanted}  # type: ignore[misc]
+    node.publishers = {"command": _Sent(log, "command")}  # type: ignore[dict-item]
+    node.controllers = ("a ROS 2 process",)
+
+    def event(topic: str, payload: bytes) -> None:
+        node.handle(Event(topic, payload, "", 0.0))
+
+    def step_of(k: int) -> None:  # state k, then the ROS 2 controller's answer
+        event("state", _state(k).encode())
+        event("joint_commands", _joint_command(stamp(k * 0.001), [10.0] * 8))
+
+    event("setpoints", Setpoints(tuple(_setpoint(k) for k in range(3))).encode())
+    step_of(0)
+    step_of(1)
+    ms = 1_000_000
+    assert log == [("joint_states", 0), ("pose", 0), ("setpoint_pose", 0), ("command", 0), ("setpoint_pose", ms),
+                   ("joint_states", ms), ("pose", ms), ("command", 1), ("setpoint_pose", 2 * ms)]
+    log.clear()
+    step_of(1)  # the clock asks for state 1 again: all of it, and its answer again (setpoint 2 is out already)
+    assert log == [("joint_states", ms), ("pose", ms), ("setpoint_pose", ms), ("command", 1)]
+    log.clear()
+    step_of(2)
+    step_of(3)  # setpoint 3 unknown when state 2 was answered: it goes with its state once it comes
+    event("setpoints", Setpoints((_setpoint(3),)).encode())
+    assert log == [("joint_states", 2 * ms), ("pose", 2 * ms), ("command", 2), ("joint_states", 3 * ms),
+                   ("pose", 3 * ms), ("setpoint_pose", 3 * ms)]
 
 
 def test_a_stamped_command_answers_the_state_with_its_stamp(scenario: object) -> None:

@@ -18,7 +18,7 @@ from typing import Any
 import numpy as np
 
 from cdpr.config.scenario import Scenario
-from cdpr.mechanics.kinematics import cable_length_rates, inverse_kinematics
+from cdpr.mechanics.kinematics import length_rates
 from cdpr.mechanics.outputs import CommandKind
 from cdpr.mechanics.robot import Robot
 from cdpr.mechanics.rotation import quat_to_matrix
@@ -72,8 +72,8 @@ class Bridge:
 
     def length_rates(self, state: State) -> list[float]:
         """The cables' length rates at ``state`` (the length Jacobian of the ideal geometry times the twist)."""
-        kin = inverse_kinematics(self.robot, np.asarray(state.pose[:3]), quat_to_matrix(np.asarray(state.pose[3:])))
-        return cable_length_rates(kin, state.twist).tolist()
+        pose = np.asarray(state.pose)
+        return length_rates(self.robot, pose[:3], quat_to_matrix(pose[3:]), state.twist).tolist()
 
     def state_messages(self, state: State, wanted: Container[str] = STEP_TOPICS) -> Payloads:
         """State k's own topics among ``wanted``: /clock, joint_states, the platform's pose and twist, /tf."""
@@ -81,17 +81,24 @@ class Bridge:
         return state_messages(state.t, self.names, state.pose, state.twist, state.cable_lengths, rates,
                               state.tensions, wanted)
 
-    def step_messages(self, state: State, setpoint: Setpoint, wanted: Container[str] = STEP_TOPICS) -> Payloads:
-        """State k and setpoint k as (topic, payload) for the topics of :data:`STEP_TOPICS` among ``wanted``;
-        state k now awaits its command (whatever is wanted)."""
+    def step_messages(self, state: State, setpoint: Setpoint | None,
+                      wanted: Container[str] = STEP_TOPICS) -> Payloads:
+        """State k and setpoint k as (topic, payload) for the topics of :data:`STEP_TOPICS` among ``wanted``
+        (``setpoint`` None: it went out ahead, :meth:`setpoint_messages`); state k now awaits its command
+        (whatever is wanted)."""
         t = stamp(state.t)
         self.newest = state
         self.pending[t] = state
         self.pending.move_to_end(t)
         while len(self.pending) > MAX_PENDING:
             self.pending.popitem(last=False)
-        return [*self.state_messages(state, wanted),
-                *setpoint_messages(state.t, setpoint.pose, setpoint.twist, setpoint.accel, wanted)]
+        if setpoint is None:
+            return self.state_messages(state, wanted)
+        return [*self.state_messages(state, wanted), *self.setpoint_messages(setpoint, wanted)]
+
+    def setpoint_messages(self, setpoint: Setpoint, wanted: Container[str] = STEP_TOPICS) -> Payloads:
+        """Setpoint k's topics among ``wanted``, stamped with its time k·dt (= state k's)."""
+        return setpoint_messages(setpoint.t, setpoint.pose, setpoint.twist, setpoint.accel, wanted)
 
     def sensor_messages(self, sensors: Sensors) -> Payloads:
         """The IMU (platform frame) and the winches' encoders (position) and load cells (effort)."""

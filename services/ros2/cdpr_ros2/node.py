@@ -80,6 +80,8 @@ class Ros2Node(Node):
         self.controllers: tuple[str, ...] = ()  # the zids of the ROS 2 processes in the controller's role
         self.published_steps = 0
         self.commands = 0
+        self.newest_step = -1  # the newest state published
+        self.ahead = -1  # the newest step whose setpoint went out ahead of its state (preview)
 
     @classmethod
     def add_arguments(cls, parser: argparse.ArgumentParser) -> None:
@@ -152,10 +154,12 @@ class Ros2Node(Node):
         if topic in ("state", "setpoints"):
             if (due := pair(self, self.pairing, event, self.m)) is not None:
                 state, setpoint = due
-                # only the topics somebody subscribes to now: a message nobody takes is neither encoded nor sent
-                wanted = {name for name, pub in self.ros.items() if pub.matched}
-                for name, payload in self.bridge.step_messages(state, setpoint, wanted):
+                # its setpoint went out ahead (preview) unless the clock asks for this step again
+                first = state.step > self.newest_step
+                for name, payload in self.bridge.step_messages(
+                        state, None if first and self.ahead == state.step else setpoint, self._wanted()):
                     self.ros[name].put(payload)
+                self.newest_step = max(self.newest_step, state.step)
                 self.pairing.done(state.step)
                 self.published_steps += 1
         elif topic == "sensors":
@@ -171,12 +175,28 @@ class Ros2Node(Node):
         elif topic in ("alive", "gone"):
             self.on_graph(topic == "alive", event.key)
 
+    def _wanted(self) -> set[str]:
+        """The topics somebody subscribes to now: a message nobody takes is neither encoded nor sent."""
+        return {name for name, pub in self.ros.items() if pub.matched}
+
+    def preview(self, step: int) -> None:
+        """Setpoint ``step`` out now, ahead of its state, once the state before it is answered (docs/ros2.md):
+        a ROS 2 controller that keeps the newest setpoint has the right one when the state comes, and takes
+        it in while the sim steps. Not when that state is out already or the setpoint is not known yet
+        (then it goes out with its state)."""
+        setpoint = self.pairing.setpoints.get(step)
+        if setpoint is None or step <= self.newest_step or step <= self.ahead or step >= self.total_steps:
+            return
+        for name, payload in self.bridge.setpoint_messages(setpoint, self._wanted()):
+            self.ros[name].put(payload)
+        self.ahead = step
+
     def final(self, event: Event) -> bool:
         """The session's last state (it has no setpoint and awaits no command): its topics without the setpoint's."""
         state = self.decode(event, self.m)
         if state is None or state.step < self.total_steps:
             return state is None
-        for name, payload in self.bridge.state_messages(state, {n for n, pub in self.ros.items() if pub.matched}):
+        for name, payload in self.bridge.state_messages(state, self._wanted()):
             self.ros[name].put(payload)
         self.published_steps += 1
         return True
@@ -195,6 +215,7 @@ class Ros2Node(Node):
             return
         self.publishers["command"].put(cmd.encode())
         self.commands += 1
+        self.preview(cmd.step + 1)
 
     # -- the ROS 2 graph: who is in the controller's role --------------------------------------------
     def on_graph(self, alive: bool, key: str) -> None:

@@ -129,6 +129,15 @@ def cable_length_rates(kin: CableKinematics, twist: ArrayLike) -> Array:
     return kin.jacobian @ np.asarray(twist, dtype=float)
 
 
+def length_rates(robot: Robot, position: ArrayLike, R: ArrayLike, twist: ArrayLike) -> Array:
+    """The length rates l̇ = J v of ``robot``'s cables at pose (position, R) moving with the world-frame twist
+    [v; ω]: :func:`cable_geometry`'s (what :func:`cable_length_rates` gives, to rounding, for a fraction of
+    its cost: no wrench matrix or Jacobian built)."""
+    twist = np.asarray(twist, dtype=float)
+    return cable_geometry(robot.frame_points, robot.platform_points, np.asarray(position, dtype=float),
+                          np.asarray(R, dtype=float), twist[:3], twist[3:], robot.pulleys)[4]
+
+
 @dataclass(frozen=True)
 class ForwardKinematicsResult:
     position: Array

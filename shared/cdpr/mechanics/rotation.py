@@ -148,7 +148,9 @@ def quat_matrix(x: Any, y: Any, z: Any, w: Any) -> Array:
 
 def quat_to_matrix(q: ArrayLike) -> Array:
     """Unit quaternion [qx, qy, qz, qw] → rotation matrix (the quaternion is normalised first)."""
-    return quat_matrix(*(np.asarray(q, dtype=float) / np.linalg.norm(q)))
+    u = np.asarray(q, dtype=float)
+    u = u / np.linalg.norm(u)
+    return quat_matrix(*(u.tolist() if u.ndim == 1 else u))  # Python floats: the same arithmetic, faster
 
 
 def rotvec_to_matrix(v: ArrayLike) -> Array:

@@ -32,6 +32,9 @@ def stamp(t: float) -> tuple[int, int]:
     return int(sec), int(nanosec)
 
 
+_STRINGS: dict[tuple[tuple[str, ...], int], bytes] = {}  # Writer.strings' bytes by (strings, start mod 4)
+
+
 class Writer:
     """A payload built field by field (``bytes(writer)`` or :meth:`payload`: the whole of it)."""
 
@@ -78,9 +81,18 @@ class Writer:
         return self.f64s(values) if len(values) else self
 
     def strings(self, values: Sequence[str]) -> Writer:
+        """A sequence of strings. Its bytes depend only on the strings and where it starts (mod 4): a tuple's
+        (a JointState's constant names, every step) are kept, :data:`_STRINGS`."""
+        key = (values, (len(self.buf) - 4) % 4) if isinstance(values, tuple) else None
+        if key is not None and (done := _STRINGS.get(key)) is not None:
+            self.buf += done
+            return self
+        start = len(self.buf)
         self.u32(len(values))
         for v in values:
             self.string(v)
+        if key is not None and len(_STRINGS) < 64:
+            _STRINGS[key] = bytes(self.buf[start:])
         return self
 
     def payload(self) -> bytes:

@@ -38,16 +38,29 @@ def add_zenoh_arguments(parser: argparse.ArgumentParser) -> None:
                    help="seconds a client keeps trying to reach --connect endpoints (default: %(default)s)")
 
 
-def parser_for(name: str) -> argparse.ArgumentParser:
+def node_classes(name: str) -> list[type[Node]]:
+    """The node classes of ``name``: one registered node, or several joined by ``+`` (``sim+ros2``) that
+    share one process (:func:`cdpr.runtime.service.serve_group`)."""
     from cdpr.runtime.registry import node_class
 
-    cls = node_class(name)
-    doc = (cls.__doc__ or "").strip().splitlines()
-    parser = argparse.ArgumentParser(prog=f"cdpr {name}", description=doc[0] if doc else None)
+    names = name.split("+")
+    if len(set(names)) != len(names):
+        raise InputError(f"{name!r}: a node named twice")
+    return [node_class(n) for n in names]
+
+
+def parser_for(name: str) -> argparse.ArgumentParser:
+    classes = node_classes(name)
+    docs = [(cls.__doc__ or "").strip().splitlines() for cls in classes]
+    what = " ".join(d[0] for d in docs if d)
+    if len(classes) > 1:
+        what = f"{' and '.join(c.name for c in classes)} in one process. {what}"
+    parser = argparse.ArgumentParser(prog=f"cdpr {name}", description=what or None)
     parser.add_argument("scenario", help="a shipped scenario name (caroca_15kg) or a scenario YAML file")
     add_options(parser, (*SESSION_OPTIONS, *REALTIME_OPTIONS))
     add_zenoh_arguments(parser)
-    cls.add_arguments(parser)
+    for cls in classes:
+        cls.add_arguments(parser)
     return parser
 
 
@@ -67,12 +80,13 @@ def _fail(message: str) -> NoReturn:
 
 def node_main(name: str, argv: Sequence[str] | None = None, before_serve: Callable[[], None] | None = None) -> NoReturn:
     """Parse ``argv`` (default ``sys.argv[1:]``), build node ``name`` and serve it until the session ends.
+    ``name`` may join several nodes with ``+`` (``sim+ros2``): they share this process and its Zenoh session
+    (ROS 2's composition; :func:`node_classes`), each built from the same options.
 
     ``before_serve`` runs once the node is built, before its Zenoh session opens (the launcher's forked
     services wait there for the session's router, :mod:`cdpr.tools.launch`)."""
     from cdpr.protocol import Keys
-    from cdpr.runtime.registry import node_class
-    from cdpr.runtime.service import hold_cpu_latency, serve, set_realtime_priority
+    from cdpr.runtime.service import hold_cpu_latency, serve, serve_group, set_realtime_priority
     from cdpr.runtime.transport import zenoh_config
 
     try:
@@ -82,15 +96,17 @@ def node_main(name: str, argv: Sequence[str] | None = None, before_serve: Callab
 
         if args.duration is not None and not (math.isfinite(args.duration) and args.duration > 0):
             raise InputError(f"--duration: must be a positive number of seconds, got {args.duration}")
-        cls = node_class(name)
-        scenario = load_scenario(args.scenario, {"duration": args.duration}, checks=cls.scenario_checks)
+        classes = node_classes(name)
+        checks = tuple(dict.fromkeys(c for cls in classes for c in cls.scenario_checks))
+        scenario = load_scenario(args.scenario, {"duration": args.duration}, checks=checks)
         try:
             keys = Keys(args.session_id)
         except ValueError as exc:
             raise InputError(f"--session: {exc}") from None
         conf = zenoh_config(args.zenoh_mode, args.connect, args.listen, args.zenoh_config, args.connect_timeout)
-        node = cls.from_args(scenario, keys, args)
-        node.configure(conf)
+        nodes = [cls.from_args(scenario, keys, args) for cls in classes]
+        for node in nodes:
+            node.configure(conf)
         if args.rt_priority is not None:
             set_realtime_priority(args.rt_priority)  # before Zenoh's threads exist: they inherit it
         if args.cpu_latency is not None:
@@ -99,4 +115,4 @@ def node_main(name: str, argv: Sequence[str] | None = None, before_serve: Callab
         _fail(str(exc))
     if before_serve is not None:
         before_serve()
-    sys.exit(serve(node, conf))
+    sys.exit(serve(nodes[0], conf) if len(nodes) == 1 else serve_group(nodes, conf))

@@ -458,7 +458,7 @@ def serve(node: Node, conf: zenoh.Config, stop: StopFlag | None = None) -> int:
     """Run ``node`` until it is done; return the process exit code (0 ok, 1 failure, 130/143 signal)."""
     stop = stop or StopFlag().install()
     faulthandler.register(signal.SIGUSR1, all_threads=True)  # SIGUSR1: every thread's stack on stderr
-    parent = int(os.environ[PARENT_ENV]) if os.environ.get(PARENT_ENV, "").isdigit() else None
+    parent = _launcher_pid()
     try:
         session = open_session(conf, node.name)
     except InputError as exc:
@@ -500,8 +500,29 @@ def serve(node: Node, conf: zenoh.Config, stop: StopFlag | None = None) -> int:
     return _exit_code([node], stop)
 
 
+def _launcher_pid() -> int | None:
+    """The process that launched this one (``$CDPR_PARENT_PID``), whose end ends the service."""
+    return int(os.environ[PARENT_ENV]) if os.environ.get(PARENT_ENV, "").isdigit() else None
+
+
+def serve_group(nodes: list[Node], conf: zenoh.Config, stop: StopFlag | None = None) -> int:
+    """:func:`serve` for several nodes in this process (``python -m cdpr.runtime sim+ros2``): one Zenoh
+    session opened from ``conf``, the nodes composed on it (:func:`serve_composed`); the exit code."""
+    stop = stop or StopFlag().install()
+    faulthandler.register(signal.SIGUSR1, all_threads=True)
+    parent = _launcher_pid()
+    name = "+".join(n.name for n in nodes)
+    try:
+        session = open_session(conf, name)
+    except InputError as exc:
+        log(name, str(exc))
+        return 2
+    with session:
+        return serve_composed(nodes, session, stop, parent=parent)
+
+
 def serve_composed(nodes: list[Node], session: zenoh.Session, stop: StopFlag | None = None,
-                   on_turn: Callable[[], None] | None = None, freeze: bool = True) -> int:
+                   on_turn: Callable[[], None] | None = None, freeze: bool = True, parent: int | None = None) -> int:
     """Run ``nodes`` in this process on one open Zenoh ``session`` until every one is done (ROS 2's
     composition, Drake's diagram): the same node classes as their own processes, the same topics and
     messages, delivered by Zenoh within the session (synchronously, on the publishing thread). Every
@@ -509,6 +530,7 @@ def serve_composed(nodes: list[Node], session: zenoh.Session, stop: StopFlag | N
     publishes to itself gets the message after its handler returns). ``on_turn`` runs once per turn of
     the main loop (the launcher's progress line). The exit code: 128 + signal, else the nodes' worst.
     ``freeze=False`` leaves the garbage collector alone (a library serving a node per episode, :mod:`cdpr.gym`).
+    ``parent``: the launcher's pid, watched as :func:`serve` does.
     """
     stop = stop or StopFlag().install()
     wake = threading.Event()
@@ -528,7 +550,7 @@ def serve_composed(nodes: list[Node], session: zenoh.Session, stop: StopFlag | N
             _freeze()  # before the first token (see serve)
         for node in nodes:
             dispatcher = _Dispatcher(node, _event_handler(node), wake, stop)
-            runners.append((node, dispatcher, _ServedNode(node, session, Inbox(dispatcher), None)))
+            runners.append((node, dispatcher, _ServedNode(node, session, Inbox(dispatcher), parent)))
         while not stop:
             wake.clear()  # before the turn: a wake-up from now on ends the sleep below
             timeout = math.inf

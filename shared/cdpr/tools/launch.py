@@ -349,10 +349,15 @@ def node_argv(scenario: Scenario, opts: RunOptions, router: str) -> dict[str, li
         clock += ["--max-lateness", repr(opts.max_lateness)]
     argv = {"clock": [*loop, "--mode", opts.mode, "--expect", ",".join(expected), *clock]}
     argv.update({name: loop for name in ("sim", "trajectory", "controller") if name not in opts.without})
-    if opts.ros2:  # ROS 2 nodes join through the router (rmw_zenoh's peers connect to it): a client of it
+    if opts.ros2:
         observe = [] if "controller" in opts.without else ["--observe"]  # never a second controller
-        argv["ros2"] = [*session_args, "--zenoh-mode", "peer", "--listen", PEER_LISTEN, "--connect", router,
-                        "--ros-namespace", opts.ros_namespace, *observe]
+        ros2 = ["--ros-namespace", opts.ros_namespace, *observe]
+        if "sim" in argv:
+            # hosted by the sim's process, as gazebo_ros's plugins are by Gazebo's server: a state reaches it
+            # and a ROS 2 command the sim within the process (docs/ros2.md), two hops fewer per step
+            argv["sim+ros2"] = [*argv.pop("sim"), *ros2]
+        else:  # a peer of the ROS 2 nodes, which connect to the router (rmw_zenoh's default)
+            argv["ros2"] = [*session_args, "--zenoh-mode", "peer", "--listen", PEER_LISTEN, "--connect", router, *ros2]
     if opts.recording:
         # The recorder is a client of the router even among local peers: it takes a few blocks a second
         # (no hop to save), and the router declares its subscribers to every peer before it passes its

@@ -28,7 +28,7 @@ def rrd_to_rosbag2(rrd: str | Path, out: str | Path, namespace: str = "/cdpr") -
     from rosbags.typesys import Stores, get_typestore
 
     from cdpr import recording
-    from cdpr.mechanics.kinematics import cable_length_rates, inverse_kinematics
+    from cdpr.mechanics.kinematics import length_rates
     from cdpr.mechanics.rotation import quat_to_matrix
     from cdpr.protocol import PROTOCOL_VERSION
     from cdpr.ros2 import messages as ros
@@ -73,10 +73,10 @@ def rrd_to_rosbag2(rrd: str | Path, out: str | Path, namespace: str = "/cdpr") -
     rows: list[tuple[int, str, bytes]] = [(0, "session_info", info_message({"v": PROTOCOL_VERSION, **info}, m))]
     for i, step in enumerate(k.tolist()):
         pose, twist = cols["pose"][i], cols["twist"][i]
-        kin = inverse_kinematics(robot, pose[:3], quat_to_matrix(pose[3:]))
+        rates = length_rates(robot, pose[:3], quat_to_matrix(pose[3:]), twist)  # as the ros2 node's (cdpr_ros2.core)
         rows += [(_ns(step * dt), name, payload) for name, payload in state_messages(
             step * dt, names, pose.tolist(), twist.tolist(), cols["cable_lengths"][i].tolist(),
-            cable_length_rates(kin, twist).tolist(), cols["tensions"][i].tolist())]
+            rates.tolist(), cols["tensions"][i].tolist())]
     for step, position, q in zip(desired.step.tolist(), desired.values, dq, strict=True):
         rows += [(_ns(step * dt), name, payload)
                  for name, payload in setpoint_messages(step * dt, (*position, *q), None, None)]

@@ -358,6 +358,7 @@ def table(r: dict[str, Any]) -> str:
             ("ROS 2 controller through the ros2 node, steps/s", _fmt(ros["ros2"]["steps_per_s"])),
             ("    ratio", _fmt(ros["ratio"], 2)),
             ("    ROS 2 side's CPU (ros2 node + controller), us/step", _fmt(ros["ros2"]["ros2_side_cpu_us_per_step"])),
+            ("      ros2 node (sim+ros2 less the cdpr runs' sim)", _fmt(ros["ros2"]["ros2_node_cpu_us_per_step"])),
             *((f"      {k}", _fmt(v)) for k, v in ros["ros2"]["cpu_us_per_step_by_process"].items()),
             ("    RMS position error, ROS 2 / cdpr, mm", f"{1e3 * ros['ros2']['rms_position_error']:.3f} / "
                                                        f"{1e3 * ros['cdpr']['rms_position_error']:.3f}"),

@@ -1,11 +1,13 @@
 """``cdpr bench``'s ROS 2 part: one session with a ROS 2 controller, the same with the cdpr controller.
 
-Both are ``cdpr up SCENARIO --without controller`` (every service a client of the session's router) and a
-controller in a process of its own connected to that router: the cdpr controller (``cdpr controller``), or
-the ROS 2 controller of :mod:`cdpr.tools.bench.ros2_controller` (written with zenoh-ros2-sdk, no cdpr
-import) behind ``--ros2``. Runs alternate (cdpr, ROS 2, cdpr, …) so that both sample the same minutes of
-a shared machine. The ROS 2 side's CPU per step is the ros2 node's plus the ROS 2 controller's, over the
-steady state (the session's progress lines). Needs the ``bench`` extra (zenoh-ros2-sdk, rosbags).
+Both are ``cdpr up SCENARIO --without controller`` and a controller in a process of its own connected to the
+session's router: the cdpr controller (``cdpr controller``), or the ROS 2 controller of
+:mod:`cdpr.tools.bench.ros2_controller` (written with zenoh-ros2-sdk, no cdpr import) behind ``--ros2`` (the
+ros2 node in the sim's process, ``sim+ros2``). Runs alternate (cdpr, ROS 2, cdpr, …) so that both sample the
+same minutes of a shared machine. The ROS 2 side's CPU per step is the ros2 node's plus the ROS 2
+controller's, over the steady state (the session's progress lines); the node's is the ``sim+ros2`` process's
+less the sim's in the cdpr-controlled runs (an estimate: the two sims do not exchange the same messages).
+Needs the ``bench`` extra (zenoh-ros2-sdk, rosbags).
 """
 
 from __future__ import annotations
@@ -55,7 +57,10 @@ def bench_ros2(scenario: str, duration: float | None, rounds: int) -> dict[str, 
             "cpu_us_per_step_by_process": {k: statistics.median(c.get(k, 0.0) for c in cpu) for k in sorted(roles)},
         }
     by = out["ros2"]["cpu_us_per_step_by_process"]
-    out["ros2"]["ros2_side_cpu_us_per_step"] = by.get("ros2", 0.0) + by.get("ros2_controller", 0.0)
+    node = by["ros2"] if "ros2" in by else \
+        by.get("sim+ros2", 0.0) - out["cdpr"]["cpu_us_per_step_by_process"].get("sim", 0.0)
+    out["ros2"]["ros2_node_cpu_us_per_step"] = node
+    out["ros2"]["ros2_side_cpu_us_per_step"] = node + by.get("ros2_controller", 0.0)
     out["ratio"] = out["ros2"]["steps_per_s"] / out["cdpr"]["steps_per_s"]
     return out
 

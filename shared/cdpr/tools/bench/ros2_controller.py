@@ -35,8 +35,8 @@ def quat_matrix(x: float, y: float, z: float, w: float) -> np.ndarray:
 
 def rotation_error(qd: np.ndarray, q: np.ndarray) -> np.ndarray:
     """log(q_d q⁻¹) as a rotation vector (world frame)."""
-    xd, yd, zd, wd = qd / np.linalg.norm(qd)
-    x, y, z, w = q / np.linalg.norm(q)
+    xd, yd, zd, wd = (qd / np.linalg.norm(qd)).tolist()
+    x, y, z, w = (q / np.linalg.norm(q)).tolist()
     # q_d ⊗ conj(q)
     ew = wd * w + xd * x + yd * y + zd * z
     ex = -wd * x + xd * w - yd * z + zd * y
@@ -59,8 +59,10 @@ def cross(a: np.ndarray, b: np.ndarray) -> np.ndarray:
 def distribute(W: np.ndarray, w: np.ndarray, tmin: float, tmax: float) -> np.ndarray:
     """min ‖t‖₂ subject to W t = w, tmin ≤ t ≤ tmax: the minimum-norm solution of the free cables, the worst
     violation clamped to its limit, again, until every cable is inside (or too few are left)."""
+    t = W.T @ np.linalg.solve(W @ W.T, w)  # the minimum-norm solution: most steps, every cable inside
+    if t.min() >= tmin - 1e-9 and t.max() <= tmax + 1e-9:
+        return np.clip(t, tmin, tmax)
     m = W.shape[1]
-    t = np.zeros(m)
     free = np.ones(m, dtype=bool)
     for _ in range(m):
         rest = w - W[:, ~free] @ t[~free]
@@ -90,7 +92,7 @@ class Law:
 
     def tensions(self, pose, twist, pose_d, twist_d, accel_d) -> np.ndarray:
         p, q = pose[:3], pose[3:]
-        R = quat_matrix(*q)
+        R = quat_matrix(*q.tolist())  # Python floats: numpy's scalars cost more than the arithmetic
         e = np.concatenate([pose_d[:3] - p, rotation_error(pose_d[3:], q)])
         acc = accel_d + self.kp * e + self.kd * (twist_d - twist)
         inertia = R @ self.inertia @ R.T
