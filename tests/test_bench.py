@@ -39,7 +39,7 @@ def bench(tmp_path_factory: pytest.TempPathFactory) -> tuple[dict, str]:
 
 def test_top_level_and_machine(bench: tuple[dict, str]) -> None:
     r, _ = bench
-    assert r["version"] == 9
+    assert r["version"] == 10
     assert r["quick"] is True
     assert r["scenario"] == "caroca_15kg"
     for key in ("plan", "machine", "started", "elapsed_s", "monolithic", "distributed", "loops", "deliveries",
@@ -317,10 +317,17 @@ def test_what_cameras_cost_in_the_bench(bench: tuple[dict, str]) -> None:
     for name in ("none", "features_60hz", "images_30hz"):
         assert _positive(cams["steps_per_s"][name])
         assert len(cams["runs_steps_per_s"][name]) == QUICK.camera_repeats
-    assert cams["features_60hz_cost"] == pytest.approx(1 - cams["steps_per_s"]["features_60hz"]
-                                                       / cams["steps_per_s"]["none"])
+    runs = cams["runs_steps_per_s"]
+    for name in ("features_60hz", "images_30hz"):  # each round's cost, against the run without a camera beside it
+        pairs = zip(runs[name], runs["none"], strict=True)
+        assert cams["runs_costs"][name] == pytest.approx([1 - x / y for x, y in pairs])
+        assert cams[f"{name}_cost"] == pytest.approx(statistics.median(cams["runs_costs"][name]))
     for name in ("none", "images_30hz"):
         assert 0.0 <= cams["realtime"][name]["on_time_fraction"] <= 1.0
+        assert len(cams["realtime_runs"][name]) == QUICK.camera_realtime_repeats
+    rounds = zip(cams["realtime_runs"]["none"], cams["realtime_runs"]["images_30hz"], strict=True)
+    assert cams["realtime_on_time_drop_points"] == pytest.approx(statistics.median(
+        100 * (a["on_time_fraction"] - b["on_time_fraction"]) for a, b in rounds))
     assert "9 cameras" in text
     assert "camera_images_30hz_cost<=0.25" in r["targets"]
 

@@ -211,10 +211,12 @@ def run_bench(plan: BenchPlan, scenario: str = "caroca_15kg", out: Path | None =
 
     result["ros2"] = bench_ros2(scenario, plan.ros2_duration, plan.ros2_repeats)
     part("cameras", f"cameras: none, features at 60 Hz, images at 30 Hz ({plan.camera_duration:g} s fast, x "
-                    f"{plan.camera_repeats}; {plan.camera_realtime_duration:g} s realtime)")
+                    f"{plan.camera_repeats}; {plan.camera_realtime_duration:g} s realtime, x "
+                    f"{plan.camera_realtime_repeats})")
     from cdpr.tools.bench.cameras import bench_cameras
 
-    result["cameras"] = bench_cameras(plan.camera_duration, plan.camera_repeats, plan.camera_realtime_duration)
+    result["cameras"] = bench_cameras(plan.camera_duration, plan.camera_repeats, plan.camera_realtime_duration,
+                                      plan.camera_realtime_repeats)
     part("gym", f"the Gymnasium environment: local mode per action space beside the monolithic loop (x "
                 f"{plan.gym_rounds}), session mode, two envs vectorised")
     from cdpr.tools.bench.gym import bench_gym
@@ -228,6 +230,10 @@ def run_bench(plan: BenchPlan, scenario: str = "caroca_15kg", out: Path | None =
         out.parent.mkdir(parents=True, exist_ok=True)
         out.write_text(json.dumps(result, indent=2) + "\n", encoding="utf-8")
     return result
+
+
+def _percents(values: list[float]) -> str:
+    return " ".join(f"{100 * x:.1f}" for x in values) + " %"
 
 
 def _fmt(x: Any, digits: int = 0) -> str:
@@ -372,13 +378,18 @@ def table(r: dict[str, Any]) -> str:
         lines += [f"    {name:48s} {value:>22s}" for name, value in (
             ("fast mode, no camera, steps/s", _fmt(rates["none"])),
             ("  a 60 Hz camera, features only, steps/s", _fmt(rates["features_60hz"])),
-            ("    throughput lost", f"{100 * cams['features_60hz_cost']:.1f} %"),
+            ("    throughput lost (median of the rounds)", f"{100 * cams['features_60hz_cost']:.1f} %"),
+            ("      each round", _percents(cams["runs_costs"]["features_60hz"])),
             ("  a 30 Hz camera drawing 640 x 480 images, steps/s", _fmt(rates["images_30hz"])),
-            ("    throughput lost", f"{100 * cams['images_30hz_cost']:.1f} %"),
+            ("    throughput lost (median of the rounds)", f"{100 * cams['images_30hz_cost']:.1f} %"),
+            ("      each round", _percents(cams["runs_costs"]["images_30hz"])),
             (f"realtime 1 kHz, {cams['realtime_duration_s']:g} s: on time without / with images",
              f"{100 * rt['none']['on_time_fraction']:.2f} / {100 * rt['images_30hz']['on_time_fraction']:.2f} %"),
             ("    a sleeping probe beside each", f"{100 * rt['none']['probe_on_time_fraction']:.2f} / "
                                                 f"{100 * rt['images_30hz']['probe_on_time_fraction']:.2f} %"),
+            ("    drop in points (median of the rounds) / probe's", f"{cams['realtime_on_time_drop_points']:.2f} / "
+                                                                  f"{cams['realtime_probe_drop_points']:.2f}"),
+            ("      each round", " ".join(f"{x:.2f}" for x in cams["realtime_runs_drop_points"])),
         )]
     else:
         lines.append(f"    {cams['reason']}")

@@ -1,9 +1,12 @@
 """``cdpr bench``'s cameras part (#26): what a camera costs the loop.
 
 The same ``caroca_15kg`` session without a camera, with a 60 Hz camera whose frames carry marker features
-only, and with a 30 Hz camera that also draws 640 × 480 images (``image: true``), in fast mode (interleaved
-rounds: none, features, images, none, …; throughput lost = 1 − rate / rate without); then realtime at 1 kHz
-without and with the image camera, a sleeping probe beside each run (the share of steps started on time).
+only, and with a 30 Hz camera that also draws 640 × 480 images (``image: true``), in fast mode, in rounds of
+adjacent runs (none, features, images; none, …): a camera's cost is the median over the rounds of
+1 − its rate / the rate without a camera in the same round (identical runs spread by ~10 % on this shared
+machine; a round's runs share its minutes). Then realtime at 1 kHz without and with the image camera, in
+rounds too, a sleeping probe beside each run (the share of steps started on time): the drop is the median of
+the rounds' drops.
 The camera looks down from the frame's top at the platform's four top corners (scenario files written to a
 temporary directory). Images need OpenCV (``pip install 'cdpr[camera]'``).
 """
@@ -48,7 +51,11 @@ def _scenarios(folder: Path) -> dict[str, str]:
     return out
 
 
-def bench_cameras(duration: float, rounds: int, realtime_duration: float) -> dict[str, Any]:
+def _round_median(values: list[float]) -> float:
+    return float(statistics.median(values))
+
+
+def bench_cameras(duration: float, rounds: int, realtime_duration: float, realtime_rounds: int = 1) -> dict[str, Any]:
     """The fast-mode rates and costs of each camera, and the realtime on-time share with the image camera."""
     try:
         import cv2  # noqa: F401  (the image camera's drawing)
@@ -65,21 +72,30 @@ def bench_cameras(duration: float, rounds: int, realtime_duration: float) -> dic
                 for k, v in s["faults"].get("sim", {}).items():
                     faults[k] = faults.get(k, 0) + v
         fast = {name: statistics.median(r) for name, r in rates.items()}
-        realtime = {}
-        for name in ("none", "images_30hz"):
-            with SleeperProbe(0.001) as probe:
-                s = _run_sessions([[scenarios[name], "--mode", "realtime", "--duration", repr(realtime_duration)]],
-                                  "camrt", 900.0)[0]
-            realtime[name] = {"on_time_fraction": s["on_time_fraction"], "probe_on_time_fraction":
-                              probe.on_time_fraction, "lateness_p99_ms": s["lateness_p99_ms"],
-                              "images_skipped": s["faults"].get("sim", {}).get("camera_images_skipped", 0)}
+        costs = {name: [1.0 - x / base for x, base in zip(rates[name], rates["none"], strict=True)]
+                 for name in ("features_60hz", "images_30hz")}
+        runs: dict[str, list[dict[str, Any]]] = {"none": [], "images_30hz": []}
+        for _ in range(realtime_rounds):
+            for name, got in runs.items():
+                with SleeperProbe(0.001) as probe:
+                    s = _run_sessions([[scenarios[name], "--mode", "realtime", "--duration",
+                                        repr(realtime_duration)]], "camrt", 900.0)[0]
+                got.append({"on_time_fraction": s["on_time_fraction"], "probe_on_time_fraction":
+                            probe.on_time_fraction, "lateness_p99_ms": s["lateness_p99_ms"],
+                            "images_skipped": s["faults"].get("sim", {}).get("camera_images_skipped", 0)})
+    realtime = {name: {k: _round_median([r[k] for r in got]) for k in got[0]} for name, got in runs.items()}
+    drops = [100.0 * (a["on_time_fraction"] - b["on_time_fraction"])
+             for a, b in zip(runs["none"], runs["images_30hz"], strict=True)]
+    probe_drops = [100.0 * (a["probe_on_time_fraction"] - b["probe_on_time_fraction"])
+                   for a, b in zip(runs["none"], runs["images_30hz"], strict=True)]
     return {
         "available": True, "duration_s": duration, "repeats": rounds, "realtime_duration_s": realtime_duration,
-        "steps_per_s": fast, "runs_steps_per_s": rates,
-        "features_60hz_cost": 1.0 - fast["features_60hz"] / fast["none"],
-        "images_30hz_cost": 1.0 - fast["images_30hz"] / fast["none"],
+        "realtime_repeats": realtime_rounds,
+        "steps_per_s": fast, "runs_steps_per_s": rates, "runs_costs": costs,
+        "features_60hz_cost": _round_median(costs["features_60hz"]),
+        "images_30hz_cost": _round_median(costs["images_30hz"]),
         "faults": faults,
-        "realtime": realtime,
-        "realtime_on_time_drop_points": 100.0 * (realtime["none"]["on_time_fraction"]
-                                                 - realtime["images_30hz"]["on_time_fraction"]),
+        "realtime": realtime, "realtime_runs": runs,
+        "realtime_on_time_drop_points": _round_median(drops), "realtime_runs_drop_points": drops,
+        "realtime_probe_drop_points": _round_median(probe_drops),
     }

@@ -5,13 +5,15 @@ from __future__ import annotations
 import sys
 from dataclasses import dataclass
 
-BENCH_VERSION = 9  # 2: loop variants (recording, in-process), deliveries, start-up; 3: the recorder writing
+BENCH_VERSION = 10  # 2: loop variants (recording, in-process), deliveries, start-up; 3: the recorder writing
 # an .rrd and an .mcap (loops.multi_process_recording_both, loops.recording_both_cost, its target); 4: the
 # monolithic loop measured before each run of a variant (M A M B M C M D), no longer first and apart; 5: the
 # MuJoCo peer (mujoco: its loop beside the monolithic one, the engines' agreement; its target); 6: realtime paced by
 # the sim (lateness: each step's start after its deadline), 2 kHz (realtime_2khz), --cpu-latency runs, the
 # monolithic loop messaging as protocol 2 does (windows, blocks); 7: a ROS 2 controller's session beside the cdpr
-# controller's (ros2); 8: what cameras cost (cameras); 9: the Gymnasium environment's speed (gym)
+# controller's (ros2); 8: what cameras cost (cameras); 9: the Gymnasium environment's speed (gym); 10: the cameras'
+# costs from rounds of adjacent runs (the median of each round's ratio), realtime in rounds too; the ros2 node in
+# the sim's process (sim+ros2)
 
 
 @dataclass(frozen=True)
@@ -34,9 +36,10 @@ class BenchPlan:
     startup_repeats: int = 3  # 50-step sessions timed as whole commands, per mode
     ros2_duration: float = 11.0  # sim seconds of each ROS 2- and cdpr-controlled session (ros2 part)
     ros2_repeats: int = 3  # runs of each, alternating
-    camera_duration: float = 6.0  # sim seconds of each fast-mode session of the cameras part
-    camera_repeats: int = 3  # rounds of (no camera, features, images)
-    camera_realtime_duration: float = 30.0  # sim seconds of each realtime session of the cameras part
+    camera_duration: float = 4.0  # sim seconds of each fast-mode session of the cameras part
+    camera_repeats: int = 8  # rounds of (no camera, features, images)
+    camera_realtime_duration: float = 15.0  # sim seconds of each realtime session of the cameras part
+    camera_realtime_repeats: int = 3  # rounds of (no camera, images) in realtime
     gym_duration: float | None = None  # sim seconds of each episode of the gym part (None: the scenario's)
     gym_rounds: int = 3  # rounds of (monolithic, env) per action space
     gym_session_duration: float = 4.0  # sim seconds of the session-mode episode
@@ -53,6 +56,7 @@ QUICK = BenchPlan(
     realtime_duration=3.0, realtime_2khz_duration=3.0, tda_sizes=(4, 8, 16), tda_calls=400,
     session_counts=(1, 2, 4), session_duration=3.0, cable_counts=(4, 16), cable_duration=3.0,
     ros2_duration=4.0, ros2_repeats=1, camera_duration=3.0, camera_repeats=1, camera_realtime_duration=3.0,
+    camera_realtime_repeats=1,
     gym_duration=2.0, gym_rounds=1, gym_session_duration=1.0, gym_vector_steps=100,
 )
 
