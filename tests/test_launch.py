@@ -90,6 +90,11 @@ def test_the_ros2_node_runs_in_the_sim_s_process_unless_the_sim_is_elsewhere() -
     assert node_argv(sc, RunOptions(ros2=True), "tcp/127.0.0.1:7447")["sim+ros2"][-1] == "--observe"
     alone = node_argv(sc, RunOptions(ros2=True, without=("controller", "sim")), "tcp/127.0.0.1:7447")
     assert set(alone) == {"clock", "trajectory", "ros2"}
+    # a participant besides the controller elsewhere: the services are clients of the router, the node a peer
+    clients = node_argv(sc, RunOptions(ros2=True, without=("controller", "trajectory")), "tcp/127.0.0.1:7447")
+    assert set(clients) == {"clock", "sim", "ros2"}
+    assert "--zenoh-mode client" in " ".join(clients["sim"])
+    assert "--zenoh-mode peer" in " ".join(clients["ros2"])
 
 
 def test_a_spawned_sim_and_ros2_node_share_a_process(session_id: str) -> None:

@@ -83,9 +83,9 @@ class Bridge:
 
     def step_messages(self, state: State, setpoint: Setpoint | None,
                       wanted: Container[str] = STEP_TOPICS) -> Payloads:
-        """State k and setpoint k as (topic, payload) for the topics of :data:`STEP_TOPICS` among ``wanted``
-        (``setpoint`` None: it went out ahead, :meth:`setpoint_messages`); state k now awaits its command
-        (whatever is wanted)."""
+        """Setpoint k and state k as (topic, payload) for the topics of :data:`STEP_TOPICS` among ``wanted``, the
+        setpoint's first, stamped with the state's time (``setpoint`` None: it went out ahead,
+        :meth:`setpoint_messages`); state k now awaits its command (whatever is wanted)."""
         t = stamp(state.t)
         self.newest = state
         self.pending[t] = state
@@ -94,10 +94,12 @@ class Bridge:
             self.pending.popitem(last=False)
         if setpoint is None:
             return self.state_messages(state, wanted)
-        return [*self.state_messages(state, wanted), *self.setpoint_messages(setpoint, wanted)]
+        return [*setpoint_messages(state.t, setpoint.pose, setpoint.twist, setpoint.accel, wanted),
+                *self.state_messages(state, wanted)]
 
     def setpoint_messages(self, setpoint: Setpoint, wanted: Container[str] = STEP_TOPICS) -> Payloads:
-        """Setpoint k's topics among ``wanted``, stamped with its time k·dt (= state k's)."""
+        """Setpoint k's topics among ``wanted`` ahead of state k, stamped with its own time, k·dt as state k's
+        (docs/protocol.md: t = k · dt)."""
         return setpoint_messages(setpoint.t, setpoint.pose, setpoint.twist, setpoint.accel, wanted)
 
     def sensor_messages(self, sensors: Sensors) -> Payloads:

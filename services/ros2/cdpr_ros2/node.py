@@ -154,8 +154,11 @@ class Ros2Node(Node):
         if topic in ("state", "setpoints"):
             if (due := pair(self, self.pairing, event, self.m)) is not None:
                 state, setpoint = due
-                # its setpoint went out ahead (preview) unless the clock asks for this step again
+                # its setpoint went out ahead (preview), unless the clock asks for this step again: then all of
+                # it again, and the answer to it sends the next setpoint ahead again
                 first = state.step > self.newest_step
+                if not first:
+                    self.ahead = min(self.ahead, state.step)
                 for name, payload in self.bridge.step_messages(
                         state, None if first and self.ahead == state.step else setpoint, self._wanted()):
                     self.ros[name].put(payload)
@@ -180,10 +183,11 @@ class Ros2Node(Node):
         return {name for name, pub in self.ros.items() if pub.matched}
 
     def preview(self, step: int) -> None:
-        """Setpoint ``step`` out now, ahead of its state, once the state before it is answered (docs/ros2.md):
-        a ROS 2 controller that keeps the newest setpoint has the right one when the state comes, and takes
-        it in while the sim steps. Not when that state is out already or the setpoint is not known yet
-        (then it goes out with its state)."""
+        """Setpoint ``step`` out now, ahead of its state, as the state before it is answered (docs/ros2.md): a
+        ROS 2 controller that keeps the newest setpoint has the right one when the state comes, and takes it in
+        while the sim steps (called before the command goes on to the sim, whose step runs within that put when
+        both share a process). Not when that state is out already or the setpoint is not known yet (then it
+        goes out with its state, first)."""
         setpoint = self.pairing.setpoints.get(step)
         if setpoint is None or step <= self.newest_step or step <= self.ahead or step >= self.total_steps:
             return
@@ -213,9 +217,9 @@ class Ros2Node(Node):
             self.count(exc.counter)
             self.warn(exc.counter, f"dropped a bad {self.topic(topic)} message: {exc}")
             return
+        self.preview(cmd.step + 1)
         self.publishers["command"].put(cmd.encode())
         self.commands += 1
-        self.preview(cmd.step + 1)
 
     # -- the ROS 2 graph: who is in the controller's role --------------------------------------------
     def on_graph(self, alive: bool, key: str) -> None:

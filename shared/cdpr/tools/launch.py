@@ -352,9 +352,10 @@ def node_argv(scenario: Scenario, opts: RunOptions, router: str) -> dict[str, li
     if opts.ros2:
         observe = [] if "controller" in opts.without else ["--observe"]  # never a second controller
         ros2 = ["--ros-namespace", opts.ros_namespace, *observe]
-        if "sim" in argv:
+        if "sim" in argv and not remote:
             # hosted by the sim's process, as gazebo_ros's plugins are by Gazebo's server: a state reaches it
-            # and a ROS 2 command the sim within the process (docs/ros2.md), two hops fewer per step
+            # and a ROS 2 command the sim within the process (docs/ros2.md), two hops fewer per step (a peer: with
+            # other participants elsewhere the services are clients of the router, and the node stays a peer)
             argv["sim+ros2"] = [*argv.pop("sim"), *ros2]
         else:  # a peer of the ROS 2 nodes, which connect to the router (rmw_zenoh's default)
             argv["ros2"] = [*session_args, "--zenoh-mode", "peer", "--listen", PEER_LISTEN, "--connect", router, *ros2]
