@@ -132,7 +132,11 @@ class SimNode(Node):
             self._camera_pubs[cam.name] = session.declare_publisher(self.keys.topic("camera", cam.name),
                                                                     **PUBLISH_OPTS)
             if cam.image:
-                self._image_pubs[cam.name] = session.declare_publisher(self.keys.topic("camera_image", cam.name))
+                # reliable, never dropped, in the lane of the sim's telemetry (not express: no need): an image put
+                # before the session's last state reaches the recorder before that state does (Zenoh keeps the
+                # order within a priority; an image on a lower one could come after the session's end)
+                self._image_pubs[cam.name] = session.declare_publisher(self.keys.topic("camera_image", cam.name),
+                                                                       **{**PUBLISH_OPTS, "express": False})
         return [*self._camera_pubs.values(), *self._image_pubs.values()]
 
     def handle(self, event: Event) -> None:
