@@ -51,10 +51,6 @@ def _scenarios(folder: Path) -> dict[str, str]:
     return out
 
 
-def _round_median(values: list[float]) -> float:
-    return float(statistics.median(values))
-
-
 def bench_cameras(duration: float, rounds: int, realtime_duration: float, realtime_rounds: int = 1) -> dict[str, Any]:
     """The fast-mode rates and costs of each camera, and the realtime on-time share with the image camera."""
     try:
@@ -83,7 +79,7 @@ def bench_cameras(duration: float, rounds: int, realtime_duration: float, realti
                 got.append({"on_time_fraction": s["on_time_fraction"], "probe_on_time_fraction":
                             probe.on_time_fraction, "lateness_p99_ms": s["lateness_p99_ms"],
                             "images_skipped": s["faults"].get("sim", {}).get("camera_images_skipped", 0)})
-    realtime = {name: {k: _round_median([r[k] for r in got]) for k in got[0]} for name, got in runs.items()}
+    realtime = {name: {k: statistics.median([r[k] for r in got]) for k in got[0]} for name, got in runs.items()}
     drops = [100.0 * (a["on_time_fraction"] - b["on_time_fraction"])
              for a, b in zip(runs["none"], runs["images_30hz"], strict=True)]
     probe_drops = [100.0 * (a["probe_on_time_fraction"] - b["probe_on_time_fraction"])
@@ -92,10 +88,10 @@ def bench_cameras(duration: float, rounds: int, realtime_duration: float, realti
         "available": True, "duration_s": duration, "repeats": rounds, "realtime_duration_s": realtime_duration,
         "realtime_repeats": realtime_rounds,
         "steps_per_s": fast, "runs_steps_per_s": rates, "runs_costs": costs,
-        "features_60hz_cost": _round_median(costs["features_60hz"]),
-        "images_30hz_cost": _round_median(costs["images_30hz"]),
+        "features_60hz_cost": statistics.median(costs["features_60hz"]),
+        "images_30hz_cost": statistics.median(costs["images_30hz"]),
         "faults": faults,
         "realtime": realtime, "realtime_runs": runs,
-        "realtime_on_time_drop_points": _round_median(drops), "realtime_runs_drop_points": drops,
-        "realtime_probe_drop_points": _round_median(probe_drops),
+        "realtime_on_time_drop_points": statistics.median(drops), "realtime_runs_drop_points": drops,
+        "realtime_probe_drop_points": statistics.median(probe_drops),
     }

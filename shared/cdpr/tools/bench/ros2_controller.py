@@ -62,20 +62,17 @@ def distribute(W: np.ndarray, w: np.ndarray, tmin: float, tmax: float) -> np.nda
     t = W.T @ np.linalg.solve(W @ W.T, w)  # the minimum-norm solution: most steps, every cable inside
     if t.min() >= tmin - 1e-9 and t.max() <= tmax + 1e-9:
         return np.clip(t, tmin, tmax)
-    m = W.shape[1]
-    free = np.ones(m, dtype=bool)
-    for _ in range(m):
-        rest = w - W[:, ~free] @ t[~free]
-        Wf = W[:, free]
-        t[free] = Wf.T @ np.linalg.solve(Wf @ Wf.T, rest)  # the minimum-norm solution (W_F has full row rank)
+    free = np.ones(W.shape[1], dtype=bool)
+    while True:
         low, high = tmin - t, t - tmax
         worst = np.where(free, np.maximum(low, high), -np.inf)
         i = int(np.argmax(worst))
         if worst[i] <= 1e-9 or free.sum() <= W.shape[0]:
-            break
+            return np.clip(t, tmin, tmax)
         t[i] = tmin if low[i] > 0 else tmax
         free[i] = False
-    return np.clip(t, tmin, tmax)
+        Wf = W[:, free]  # the minimum-norm solution of the free cables (W_F has full row rank)
+        t[free] = Wf.T @ np.linalg.solve(Wf @ Wf.T, w - W[:, ~free] @ t[~free])
 
 
 class Law:
