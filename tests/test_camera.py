@@ -374,6 +374,35 @@ def test_the_recording_holds_each_camera_and_what_it_saw(tmp_path: Path) -> None
         np.testing.assert_allclose(np.array(xy), truth.pixels, rtol=0, atol=1e-3)  # stored as float32
 
 
+def test_a_renderer_draws_each_image_as_a_fresh_one_would(tmp_path: Path) -> None:
+    """The renderer keeps what does not move (a frame camera's backdrop): its tenth image is the image a new
+    renderer draws first, for cameras on the frame and on the platform; the image process sends the same JPEG."""
+    from cdpr_sim.render import Renderer, RenderProcess, encode_jpeg
+
+    sc = load_scenario(CAMERA_SCENARIO.with_name("caroca_15kg_camera_images.yaml"))
+    on_platform = Camera(name="up", on_platform=True, mount_position=np.array([0.0, 0.0, 0.25]),
+                         mount_rotation=look_at([0.0, 0.0, 0.25], [0.0, 0.0, 5.0], [0.0, 1.0, 0.0]),
+                         intrinsics=INTRINSICS, markers=np.zeros((1, 3)), markers_on_platform=False, marker_ids=("m",),
+                         every=10, image=True)
+    cameras = (*sc.cameras, on_platform)
+    rng = np.random.default_rng(5)
+    poses = [(sc.robot.home_position + rng.uniform(-0.3, 0.3, 3), rpy_to_matrix(*rng.uniform(-0.4, 0.4, 3)))
+             for _ in range(10)]
+    process = RenderProcess(cameras, sc.robot)
+    try:
+        assert process.ready() == ""
+        for cam in cameras:
+            kept = Renderer(cam, sc.robot)
+            for p, R in poses:
+                image = kept.draw(p, R)
+            first = Renderer(cam, sc.robot).draw(*poses[-1])
+            np.testing.assert_array_equal(image, first, err_msg=cam.name)
+            assert (image != image[0, 0]).any(axis=2).mean() > 0.002  # something is drawn (lines at least)
+            assert process.image(cam.name, *poses[-1]) == encode_jpeg(first)
+    finally:
+        process.close()
+
+
 @pytest.mark.slow
 def test_images_are_drawn_off_the_loop_and_recorded(tmp_path: Path) -> None:
     """Two cameras with images: every frame's JPEG in the .rrd, on the camera's entity; the markers are red dots

@@ -9,6 +9,7 @@ import subprocess
 import sys
 import threading
 import time
+from pathlib import Path
 
 import msgpack
 import numpy as np
@@ -19,7 +20,7 @@ from scipy.spatial.transform import Rotation
 from cdpr.config.robot import load_robot, shipped_robots
 from cdpr.mechanics.control import FeedbackLaw, Gains, controlled_rows, feedback_linearisation
 from cdpr.mechanics.kinematics import WrenchMatrix, inverse_kinematics
-from cdpr.mechanics.rotation import matrix_to_quat, quat_to_matrix
+from cdpr.mechanics.rotation import matrices_to_quats, matrix_to_quat, quat_to_matrix
 from cdpr.mechanics.tda import make_tda
 from cdpr.protocol import PROTOCOL_VERSION, Command, ProtocolError, State
 from cdpr.runtime.service import Node, _Dispatcher
@@ -84,6 +85,11 @@ def test_matrix_to_quat_against_scipy_on_every_branch() -> None:
         np.testing.assert_allclose(got, want, rtol=0, atol=1e-14)
         assert got[3] >= 0.0
         assert abs(np.linalg.norm(got) - 1.0) < 1e-15
+    # the block version: each matrix's quaternion bit for bit, whatever its branch and its neighbours'
+    matrices = np.array([rot.as_matrix() for rot in rotations])
+    np.testing.assert_array_equal(matrices_to_quats(matrices), [matrix_to_quat(R) for R in matrices])
+    few = matrices[::-1][:5]
+    np.testing.assert_array_equal(matrices_to_quats(few), [matrix_to_quat(R) for R in few])
 
 
 def test_clamp_tensions_fast_path_matches_the_formula() -> None:
@@ -352,3 +358,17 @@ def test_a_thread_never_waits_for_another_threads_handler_and_no_event_is_strand
     node.done = True
     dispatch(Event("x", b"", "after the end", 0.0))  # returns (nothing more is handled), and says so
     assert node.seen == ["hold", "meanwhile"]
+
+
+def test_shared_memory_is_off_unless_a_config_file_says_otherwise(tmp_path: Path) -> None:
+    """Zenoh's shared-memory transport set itself up at a process's second large put (~5 ms of the sim's loop in
+    a realtime session): the services' own config turns it off; a user's JSON5 config file keeps its choice."""
+    import json
+
+    assert json.loads(zenoh_config("peer", listen=["tcp/127.0.0.1:0"]).get_json("transport/shared_memory/enabled")) \
+        is False
+    assert json.loads(zenoh_config("client", connect=["tcp/127.0.0.1:7447"]).get_json(
+        "transport/shared_memory/enabled")) is False
+    path = tmp_path / "zenoh.json5"
+    path.write_text("{ transport: { shared_memory: { enabled: true } } }", encoding="utf-8")
+    assert json.loads(zenoh_config("peer", config_file=str(path)).get_json("transport/shared_memory/enabled")) is True

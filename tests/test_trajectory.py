@@ -14,6 +14,7 @@ from scipy.spatial.transform import Rotation, Slerp
 from cdpr.config.trajectory import TrajectorySpec, trajectory_from_spec
 from cdpr.mechanics.rotation import rpy_to_matrix
 from cdpr.mechanics.trajectory import (
+    PlatformPoint,
     QuinticWaypoints,
     SCurve,
     Setpoint,
@@ -169,6 +170,51 @@ def test_holds_before_the_start_and_after_the_end() -> None:
         assert_at_rest(sp)
     # moving in between
     assert np.linalg.norm(traj.sample(3.5).twist) > 0.1
+
+
+def _assert_block_is_samples(trajectory: Trajectory, times: np.ndarray) -> None:
+    block = trajectory.sample_block(times)
+    quats = block.quaternion
+    for j, t in enumerate(times.tolist()):
+        sp = trajectory.sample(t)
+        for field in ("position", "rotation", "twist", "accel"):
+            np.testing.assert_array_equal(getattr(block, field)[j], getattr(sp, field), err_msg=f"{field} at t={t}")
+        np.testing.assert_array_equal(quats[j], sp.quaternion, err_msg=f"quaternion at t={t}")
+
+
+@pytest.mark.parametrize("seed", range(6))
+def test_sample_block_is_sample_bit_for_bit(seed: int) -> None:
+    """A block of samples (the trajectory node's setpoints) = one sample() per time, to the last bit: before the
+    first waypoint, on the waypoints, between them, after the last; quintic, S-curve, a point off the frame."""
+    rng = np.random.default_rng(seed)
+    quintic = random_quintic(seed)
+    times = np.concatenate([np.array(quintic.times), rng.uniform(quintic.times[0] - 1.0, quintic.duration + 1.0, 300)])
+    rng.shuffle(times)
+    _assert_block_is_samples(quintic, times)
+    _assert_block_is_samples(PlatformPoint(quintic, rng.uniform(-0.2, 0.2, 3)), times)
+    scurve = SCurve(A, B, None, 1.0, 2.0, 1.0, [0.1, -0.1, 0.2], [0.0, 0.2, -0.4], t_start=0.5, pass_height=[1.3, 1.1])
+    _assert_block_is_samples(scurve, np.arange(-10, 500) * 0.01)
+    _assert_block_is_samples(scurve, np.array([]))
+
+
+def test_sample_block_of_a_trajectory_without_one_samples_each_time() -> None:
+    """A Trajectory subclass that only knows sample() gets the generic block, the same numbers."""
+
+    class Circle(Trajectory):
+        duration = 1.0
+
+        def sample(self, t: float) -> Setpoint:
+            return Setpoint(np.array([np.cos(t), np.sin(t), 1.0]), np.eye(3), np.full(6, t), np.zeros(6))
+
+        def waypoints(self) -> list[tuple[float, np.ndarray]]:
+            return []
+
+    _assert_block_is_samples(Circle(), np.linspace(0.0, 2.0, 7))
+
+
+def test_sample_block_rejects_non_finite_times(traj: QuinticWaypoints) -> None:
+    with pytest.raises(ValueError, match="finite"):
+        traj.sample_block([0.0, float("nan")])
 
 
 def test_setpoints_are_read_only(traj: QuinticWaypoints) -> None:
@@ -481,3 +527,18 @@ def test_trajectory_spec_embeds_as_a_field() -> None:
     assert info.value.errors()[0]["loc"] == ("trajectory", "scurve", "times")
     with pytest.raises(ValidationError):
         _Scenario.model_validate({"trajectory": {"type": "circle"}})
+
+
+def test_the_nodes_setpoint_blocks_are_its_setpoints_step_by_step() -> None:
+    """What the trajectory node publishes (blocks) = setpoint_at of each step, message for message, over every
+    step of every shipped scenario (and a few past its end, where the final pose is held)."""
+    from cdpr.config.scenario import load_scenario, shipped_scenarios
+    from cdpr_trajectory.core import setpoint_at, setpoints_between
+
+    for name in shipped_scenarios():
+        sc = load_scenario(name)
+        n = sc.total_steps + 5
+        blocks = [setpoints_between(sc.trajectory, k, min(k + 99, n - 1), sc.dt) for k in range(0, n, 100)]
+        got = [sp for block in blocks for sp in block]
+        assert got == [setpoint_at(sc.trajectory, k, sc.dt) for k in range(n)], name
+    assert setpoints_between(load_scenario("caroca_15kg").trajectory, 5, 4, 1e-3) == ()

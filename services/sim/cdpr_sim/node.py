@@ -137,6 +137,8 @@ class SimNode(Node):
                 # order within a priority; an image on a lower one could come after the session's end)
                 self._image_pubs[cam.name] = session.declare_publisher(self.keys.topic("camera_image", cam.name),
                                                                        **{**PUBLISH_OPTS, "express": False})
+        if self.renderer is not None and (reason := self.renderer.ready()):  # before the sim says it is there
+            self.warn("camera_image", f"no camera images in this session: {reason}")
         return [*self._camera_pubs.values(), *self._image_pubs.values()]
 
     def handle(self, event: Event) -> None:

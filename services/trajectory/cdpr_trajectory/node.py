@@ -18,7 +18,7 @@ from cdpr.config.scenario import Scenario
 from cdpr.protocol import Keys, Setpoint, Setpoints
 from cdpr.runtime.service import Node
 from cdpr.runtime.transport import Event, Inbox
-from cdpr_trajectory.core import setpoint_at
+from cdpr_trajectory.core import setpoint_at, setpoints_between
 
 AHEAD = 100  # setpoints published beyond the last granted step
 
@@ -31,6 +31,11 @@ class TrajectoryNode(Node):
     def make_core(cls, scenario: Scenario) -> Callable[[int], Setpoint]:
         """Step k → setpoint k."""
         return functools.partial(setpoint_at, scenario.trajectory, dt=scenario.dt)
+
+    @classmethod
+    def make_block_core(cls, scenario: Scenario) -> Callable[[int, int], tuple[Setpoint, ...]]:
+        """Steps first … last → their setpoints (what the node publishes: :func:`setpoints_between`)."""
+        return functools.partial(setpoints_between, scenario.trajectory, dt=scenario.dt)
 
     def __init__(self, scenario: Scenario, keys: Keys) -> None:
         super().__init__(keys)
@@ -56,6 +61,5 @@ class TrajectoryNode(Node):
     def publish(self, first: int, last: int) -> None:
         assert self._pub is not None
         if last >= first:
-            self._pub.put(Setpoints(tuple(setpoint_at(self.trajectory, k, self.dt) for k in range(first, last + 1)))
-                          .encode())
+            self._pub.put(Setpoints(setpoints_between(self.trajectory, first, last, self.dt)).encode())
             self.published = max(self.published, last)

@@ -63,7 +63,7 @@ class LocalLoop:
         key = (scenario.spec.trajectory.model_dump_json(), scenario.dt)
         if key != self._trajectory:  # the setpoints depend on the trajectory only: kept from episode to episode
             self._trajectory = key
-            self.setpoint_at = _cached(node_class("trajectory").make_core(scenario))
+            self.setpoint_at = _cached(node_class("trajectory").make_block_core(scenario))  # type: ignore[attr-defined]
         self.sensors = sim.make_sensors(scenario)  # type: ignore[attr-defined]  # the sim node's
         self.total_steps = scenario.total_steps
         self.clamped = 0
@@ -102,13 +102,14 @@ class LocalLoop:
         self.sim = None
 
 
-def _cached(setpoint_at: Callable[[int], Setpoint]) -> Callable[[int], Setpoint]:
-    """``setpoint_at`` remembering every setpoint it computed (the trajectory's core, the same messages)."""
+def _cached(block: Callable[[int, int], tuple[Setpoint, ...]], size: int = 100) -> Callable[[int], Setpoint]:
+    """Step k → setpoint k from the trajectory's block core (the same messages as the node's), ``size`` steps at
+    a time (a trajectory is defined at every time: a block may reach past the episode's end), each remembered."""
     memo: list[Setpoint] = []
 
     def cached(step: int) -> Setpoint:
         while len(memo) <= step:
-            memo.append(setpoint_at(len(memo)))
+            memo.extend(block(len(memo), max(step, len(memo) + size - 1)))
         return memo[step]
 
     return cached

@@ -119,6 +119,36 @@ def matrix_to_quat(R: ArrayLike) -> Array:
     return np.array((x / n, y / n, z / n, w / n))
 
 
+def matrices_to_quats(R: ArrayLike) -> Array:
+    """(n, 3, 3) rotation matrices → (n, 4) unit quaternions: :func:`matrix_to_quat` of each, bit for bit (the
+    same branch per matrix and the same operations, on arrays)."""
+    m = np.asarray(R, dtype=float).reshape(-1, 3, 3)
+    m00, m01, m02, m10, m11, m12, m20, m21, m22 = m.reshape(-1, 9).T
+    q = np.empty((len(m), 4))
+    tr = m00 + m11 + m22
+    first = tr > 0.0
+    second = ~first & (m00 > m11) & (m00 > m22)
+    third = ~first & ~second & (m11 > m22)
+    fourth = ~(first | second | third)
+    for mask, diagonal, columns in (
+        (first, lambda k: tr[k] + 1.0, lambda k, s: ((m21[k] - m12[k]) / s, (m02[k] - m20[k]) / s,
+                                                     (m10[k] - m01[k]) / s, 0.25 * s)),
+        (second, lambda k: 1.0 + m00[k] - m11[k] - m22[k], lambda k, s: (0.25 * s, (m01[k] + m10[k]) / s,
+                                                                        (m02[k] + m20[k]) / s, (m21[k] - m12[k]) / s)),
+        (third, lambda k: 1.0 + m11[k] - m00[k] - m22[k], lambda k, s: ((m01[k] + m10[k]) / s, 0.25 * s,
+                                                                       (m12[k] + m21[k]) / s, (m02[k] - m20[k]) / s)),
+        (fourth, lambda k: 1.0 + m22[k] - m00[k] - m11[k], lambda k, s: ((m02[k] + m20[k]) / s, (m12[k] + m21[k]) / s,
+                                                                        0.25 * s, (m10[k] - m01[k]) / s)),
+    ):
+        if mask.any():
+            s = 2.0 * np.sqrt(diagonal(mask))
+            q[mask] = np.column_stack(columns(mask, s))
+    x, y, z, w = q.T
+    n = np.sqrt(x * x + y * y + z * z + w * w)
+    n[w < 0.0] *= -1.0
+    return q / n[:, None]
+
+
 def rotvec_quat(rx: float, ry: float, rz: float) -> tuple[float, float, float, float]:
     """Rotation vector (axis × angle, any angle) → unit quaternion ``(qx, qy, qz, qw)`` with qw ≥ 0.
 

@@ -53,9 +53,18 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import ArrayLike
 
-from cdpr.mechanics.rotation import Array, matrix_to_quat, matrix_to_rotvec, readonly, rpy_to_matrix, skew
+from cdpr.mechanics.rotation import (
+    Array,
+    matrices_to_quats,
+    matrix_to_quat,
+    matrix_to_rotvec,
+    readonly,
+    rpy_to_matrix,
+    skew,
+)
 
 __all__ = [
+    "Block",
     "QuinticWaypoints",
     "SCurve",
     "Setpoint",
@@ -76,6 +85,22 @@ class Setpoint:
     def quaternion(self) -> Array:
         """The rotation as a unit quaternion [qx, qy, qz, qw] (qw ≥ 0)."""
         return matrix_to_quat(self.rotation)
+
+
+@dataclass(frozen=True, eq=False)
+class Block:
+    """The setpoints at n instants, row by row (:meth:`Trajectory.sample_block`): what n :meth:`~Trajectory.sample`
+    calls give, bit for bit, as arrays."""
+
+    position: Array  # (n, 3)
+    rotation: Array  # (n, 3, 3)
+    twist: Array  # (n, 6)
+    accel: Array  # (n, 6)
+
+    @property
+    def quaternion(self) -> Array:
+        """(n, 4) the rotations as unit quaternions [qx, qy, qz, qw] (qw ≥ 0), each as :attr:`Setpoint.quaternion`."""
+        return matrices_to_quats(self.rotation)
 
 
 def _hold(position: Array, rotation: Array) -> Setpoint:
@@ -101,6 +126,13 @@ class Trajectory(ABC):
     def waypoints(self) -> list[tuple[float, Array]]:
         """(time, position) of each waypoint, in time order, for drawing and checks."""
 
+    def sample_block(self, times: ArrayLike) -> Block:
+        """The setpoints at ``times`` (s, (n,)): :meth:`sample` at each, bit for bit, as a :class:`Block`
+        (a trajectory that can does it for all at once: a block of 100 costs about what 5 samples do)."""
+        samples = [self.sample(float(t)) for t in np.asarray(times, dtype=float).reshape(-1)]
+        return Block(*(np.array([getattr(x, f) for x in samples]).reshape(len(samples), *shape)
+                       for f, shape in (("position", (3,)), ("rotation", (3, 3)), ("twist", (6,)), ("accel", (6,)))))
+
 
 class PlatformPoint(Trajectory):
     """The motion of the point ``offset`` (platform frame) of a platform whose frame follows ``frame``: where a
@@ -122,6 +154,15 @@ class PlatformPoint(Trajectory):
         twist = np.r_[s.twist[:3] + w_r, w]
         accel = np.r_[s.accel[:3] + np.cross(alpha, r) + np.cross(w, w_r), alpha]
         return Setpoint(readonly(s.position + r), s.rotation, readonly(twist), readonly(accel))
+
+    def sample_block(self, times: ArrayLike) -> Block:
+        b = self.frame.sample_block(times)
+        r = np.array([R @ self.offset for R in b.rotation]).reshape(-1, 3)  # as sample() multiplies, row by row
+        w, alpha = b.twist[:, 3:], b.accel[:, 3:]
+        w_r = np.cross(w, r)
+        twist = np.hstack((b.twist[:, :3] + w_r, w))
+        accel = np.hstack((b.accel[:, :3] + np.cross(alpha, r) + np.cross(w, w_r), alpha))
+        return Block(b.position + r, b.rotation, twist, accel)
 
     def waypoints(self) -> list[tuple[float, Array]]:
         return [(t, self.sample(t).position.copy()) for t, _ in self.frame.waypoints()]
@@ -247,6 +288,38 @@ class QuinticWaypoints(Trajectory):
         accel[3:] = dds * self._axis_world[i]
         return Setpoint(readonly(position), readonly(rotation), readonly(twist), readonly(accel))
 
+    def sample_block(self, times: ArrayLike) -> Block:
+        """:meth:`sample` at every time at once: the same operations in the same order on arrays (numpy's
+        elementwise arithmetic rounds as Python's; the angles' sines with :mod:`math`, as there): bit for bit."""
+        t = np.asarray(times, dtype=float).reshape(-1)
+        if not np.isfinite(t).all():
+            raise ValueError(f"sample time must be finite (got {t[~np.isfinite(t)][0]})")
+        n = t.size
+        position, rotation = np.empty((n, 3)), np.empty((n, 3, 3))
+        twist, accel = np.zeros((n, 6)), np.zeros((n, 6))
+        before, after = t <= self._times[0], t >= self.duration
+        for mask, hold in ((before, self._first), (after & ~before, self._last)):
+            position[mask], rotation[mask] = hold.position, hold.rotation
+        moving = ~(before | after)
+        if moving.any():
+            tm = t[moving]
+            i = np.searchsorted(self._times, tm, side="right") - 1  # bisect_right − 1
+            inv_h = self._inv_h[i]
+            tau = (tm - np.asarray(self._times)[i]) * inv_h
+            u = 1.0 - tau
+            s = tau * tau * tau * (10.0 - 15.0 * tau + 6.0 * tau * tau)
+            ds = (30.0 * tau * tau * u * u * inv_h)[:, None]
+            dds = (60.0 * tau * u * (1.0 - 2.0 * tau) * inv_h * inv_h)[:, None]
+            dx, axis = self._dx[i], self._axis_world[i]
+            position[moving] = self._x0[i] + s[:, None] * dx
+            a = (s * self._theta[i]).tolist()
+            sin_a = np.array([math.sin(x) for x in a])[:, None, None]
+            one_minus_cos = np.array([1.0 - math.cos(x) for x in a])[:, None, None]
+            rotation[moving] = self._R0[i] + sin_a * self._RK[i] + one_minus_cos * self._RK2[i]
+            twist[moving] = np.hstack((ds * dx, ds * axis))
+            accel[moving] = np.hstack((dds * dx, dds * axis))
+        return Block(position, rotation, twist, accel)
+
 
 def _rotations(rpys: Array) -> Array:
     return np.array([rpy_to_matrix(*rpy) for rpy in rpys])
@@ -338,6 +411,9 @@ class SCurve(Trajectory):
 
     def sample(self, t: float) -> Setpoint:
         return self._path.sample(t)
+
+    def sample_block(self, times: ArrayLike) -> Block:
+        return self._path.sample_block(times)
 
     def waypoints(self) -> list[tuple[float, Array]]:
         return self._path.waypoints()

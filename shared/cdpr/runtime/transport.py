@@ -65,6 +65,13 @@ def zenoh_config(
         raise InputError(f"--mode: Zenoh mode must be peer, client or router, got {mode!r}")
     if not path or mode != "peer":
         conf.insert_json5("mode", json.dumps(mode))
+    if not path:
+        # Zenoh puts a payload above 3 KB through shared memory when the peer is on the same machine. The
+        # second such put of a process sets the shared memory up: ~5 ms of the publishing thread (the sim's
+        # loop: its second telemetry block, step 100, started a burst of late steps in every realtime
+        # session), and every such put costs more than a copy through the socket (40 vs 20 µs for 20 KB).
+        # The session's payloads are small: off, unless a config file says otherwise.
+        conf.insert_json5("transport/shared_memory/enabled", "false")
     if connect:
         conf.insert_json5("connect/endpoints", json.dumps(list(connect)))
         conf.insert_json5("connect/timeout_ms", json.dumps({mode: int(connect_timeout * 1000)}))

@@ -46,7 +46,7 @@ def monolithic_steps(scenario: Scenario, steps: int, timers: dict[str, float] | 
 
     sim = node_class("sim").make_core(scenario)
     core = node_class("controller").make_core(scenario)
-    setpoint_at = node_class("trajectory").make_core(scenario)
+    setpoints_between = node_class("trajectory").make_block_core(scenario)  # type: ignore[attr-defined]
     m, dt = scenario.robot.m, scenario.dt
     clock = time.perf_counter
     parts = dict.fromkeys(("sim", "controller", "trajectory", "messages"), 0.0)
@@ -71,7 +71,7 @@ def monolithic_steps(scenario: Scenario, steps: int, timers: dict[str, float] | 
             granted = Tick.decode(tick)
             if timed:
                 lap("messages")
-            block = Setpoints(tuple(setpoint_at(j) for j in range(granted.step, granted.until + 1)))
+            block = Setpoints(setpoints_between(granted.step, granted.until))
             if timed:
                 lap("trajectory")
             setpoints = Setpoints.decode(block.encode()).items

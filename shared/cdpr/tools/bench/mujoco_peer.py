@@ -20,7 +20,7 @@ import numpy as np
 
 from cdpr.config.scenario import Scenario
 from cdpr.mechanics.rotation import Array, matrix_to_quat, quat_to_matrix
-from cdpr.protocol import State
+from cdpr.protocol import Setpoint, State
 
 
 def mjcf(scenario: Scenario, integrator: str = "RK4") -> str:
@@ -93,15 +93,20 @@ class MujocoPlant:
 
 def peer_steps(scenario: Scenario, steps: int) -> float:
     """Run ``steps`` steps of the project's trajectory and controller cores on the MuJoCo plant; the wall
-    time (s). The monolithic loop's work minus the messages, with MuJoCo's step instead of the sim's."""
+    time (s). The monolithic loop's work minus the messages, with MuJoCo's step instead of the sim's (the
+    setpoints computed in the monolithic loop's blocks too)."""
     from cdpr.runtime.registry import node_class
+    from cdpr.tools.bench.loops import MONOLITHIC_WINDOW
 
     plant = MujocoPlant(scenario)
     core = node_class("controller").make_core(scenario)
-    setpoint_at = node_class("trajectory").make_core(scenario)
+    setpoints_between = node_class("trajectory").make_block_core(scenario)  # type: ignore[attr-defined]
+    setpoints: tuple[Setpoint, ...] = ()
     t0 = time.perf_counter()
     for k in range(steps):
-        plant.step(core.step(plant.message(), setpoint_at(k)).tensions)
+        if k % MONOLITHIC_WINDOW == 0:
+            setpoints = setpoints_between(k, min(steps, k + MONOLITHIC_WINDOW) - 1)
+        plant.step(core.step(plant.message(), setpoints[k % MONOLITHIC_WINDOW]).tensions)
     return time.perf_counter() - t0
 
 
