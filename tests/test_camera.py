@@ -376,7 +376,8 @@ def test_the_recording_holds_each_camera_and_what_it_saw(tmp_path: Path) -> None
 
 def test_a_renderer_draws_each_image_as_a_fresh_one_would(tmp_path: Path) -> None:
     """The renderer keeps what does not move (a frame camera's backdrop): its tenth image is the image a new
-    renderer draws first, for cameras on the frame and on the platform; the image process sends the same JPEG."""
+    renderer draws first, for cameras on the frame and on the platform; the image process (once ready) sends the
+    same JPEG."""
     from cdpr_sim.render import Renderer, RenderProcess, encode_jpeg
 
     sc = load_scenario(CAMERA_SCENARIO.with_name("caroca_15kg_camera_images.yaml"))
@@ -399,6 +400,9 @@ def test_a_renderer_draws_each_image_as_a_fresh_one_would(tmp_path: Path) -> Non
             np.testing.assert_array_equal(image, first, err_msg=cam.name)
             assert (image != image[0, 0]).any(axis=2).mean() > 0.002  # something is drawn (lines at least)
             assert process.image(cam.name, *poses[-1]) == encode_jpeg(first)
+            # OpenCV's channel swap: the bytes numpy's reversed copy gave
+            reference = cv2.imencode(".jpg", np.ascontiguousarray(first[:, :, ::-1]), [cv2.IMWRITE_JPEG_QUALITY, 85])[1]
+            assert encode_jpeg(first) == bytes(reference)
     finally:
         process.close()
 

@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import contextlib
 import os
+import time
 from typing import Any
 
 import numpy as np
@@ -68,9 +69,9 @@ class Renderer:
         self._background = background
         self._backdrop: NDArray[np.uint8] | None = None  # a frame camera's background with the frame's edges
 
-    def backdrop(self, cam_p: Array, cam_R: Array) -> NDArray[np.uint8]:
-        """A fresh image with the background and the frame's edges drawn (those of a camera on the frame drawn
-        once, then copied)."""
+    def _fresh_image(self, cam_p: Array, cam_R: Array) -> NDArray[np.uint8]:
+        """A new image with the background and the frame's edges drawn, the camera at ``cam_p``/``cam_R`` (for a
+        camera on the frame, whose pose never changes, drawn once and then copied)."""
         if self._backdrop is not None:
             return self._backdrop.copy()
         img = self._background.copy()
@@ -106,7 +107,7 @@ class Renderer:
         cam, k = self.camera, self.camera.intrinsics
         p, R = np.asarray(position, dtype=float), np.asarray(rotation, dtype=float)
         cam_p, cam_R = cam.pose(p, R)
-        img = self.backdrop(cam_p, cam_R)
+        img = self._fresh_image(cam_p, cam_R)
         # the platform's faces, farthest first; each shaded by the cosine between its normal and the view
         corners = p + self.platform_corners @ R.T
         faces = []
@@ -150,6 +151,10 @@ def encode_jpeg(image: NDArray[np.uint8], quality: int = 85) -> bytes:
     return bytes(data)
 
 
+READY = "ready"  # the image process's first message once its first images are drawn
+READY_TIMEOUT = 20.0  # s: the image process starts in ~1 s (imports, OpenCV, one image of each camera)
+
+
 class RenderProcess:
     """Draws and encodes the images in a process of their own, so that drawing (numpy and Python between OpenCV's
     calls) never holds the loop's interpreter lock. The process starts at once and gets ready on its own
@@ -171,12 +176,17 @@ class RenderProcess:
         child.close()
         self._ready: str | None = None  # "" once ready, else why it is not
 
-    def ready(self, timeout: float = 60.0) -> str:
+    def ready(self, timeout: float = READY_TIMEOUT) -> str:
         """Wait (``timeout`` s at most) until the process has drawn its first images; "" when it has, else why
-        not (then every image fails with that reason: OpenCV missing, the process gone)."""
+        not (then every image fails with that reason: OpenCV missing, the process gone). Waits in short slices,
+        so that a process that died is seen at once."""
         if self._ready is None:
-            if not self._conn.poll(timeout):
-                self._ready = f"the image process was not ready after {timeout:g} s"
+            deadline = time.monotonic() + timeout
+            while not self._conn.poll(0.1) and self._proc.is_alive() and time.monotonic() < deadline:
+                pass
+            if not self._conn.poll(0):
+                self._ready = (f"the image process was not ready after {timeout:g} s" if self._proc.is_alive()
+                               else "the image process ended while starting")
             else:
                 try:
                     reply = self._conn.recv()
@@ -210,17 +220,15 @@ class RenderProcess:
         self._conn.close()
 
 
-READY = "ready"  # the image process's first message once its first images are drawn
-
-
 def _serve(conn: Any, cameras: tuple[Camera, ...], robot: Robot) -> None:
     """The image process: ready (or why not) once each camera has drawn one image at the robot's home pose,
     then a pose in, a JPEG out (or the error's text), until told to stop or orphaned."""
     import signal
 
     signal.signal(signal.SIGINT, signal.SIG_IGN)  # Ctrl-C stops the sim, which then stops this
-    renderers = {c.name: Renderer(c, robot) for c in cameras}
+    renderers: dict[str, Renderer] = {}
     try:
+        renderers = {c.name: Renderer(c, robot) for c in cameras}
         # One thread: OpenCV's pool would split a 1 ms image over the CPUs the loop needs, its threads made
         # before the process lowers its priority (which is per thread) keeping the normal one.
         _cv2().setNumThreads(1)
@@ -230,7 +238,8 @@ def _serve(conn: Any, cameras: tuple[Camera, ...], robot: Robot) -> None:
     except (EOFError, OSError):
         return
     except Exception as exc:  # said to the sim, which says it once and counts the images it cannot have
-        conn.send(f"{type(exc).__name__}: {exc}")
+        with contextlib.suppress(OSError):
+            conn.send(f"{type(exc).__name__}: {exc}")
     while True:
         try:
             job = conn.recv()
@@ -244,8 +253,13 @@ def _serve(conn: Any, cameras: tuple[Camera, ...], robot: Robot) -> None:
         name, position, rotation = job
         try:
             conn.send(encode_jpeg(renderers[name].draw(position, rotation)))
+        except (EOFError, OSError):
+            return  # the sim is gone
         except Exception as exc:  # said to the sim, which counts it; the process goes on
-            conn.send(f"{type(exc).__name__}: {exc}")
+            try:
+                conn.send(f"{type(exc).__name__}: {exc}")
+            except OSError:
+                return
 
 
 def _lowest_priority() -> None:

@@ -121,7 +121,8 @@ def matrix_to_quat(R: ArrayLike) -> Array:
 
 def matrices_to_quats(R: ArrayLike) -> Array:
     """(n, 3, 3) rotation matrices → (n, 4) unit quaternions: :func:`matrix_to_quat` of each, bit for bit (the
-    same branch per matrix and the same operations, on arrays)."""
+    same branch per matrix and the same operations, on arrays). Rotations only: where :func:`matrix_to_quat`
+    raises for a matrix that is none (a negative square root), this gives NaN."""
     m = np.asarray(R, dtype=float).reshape(-1, 3, 3)
     m00, m01, m02, m10, m11, m12, m20, m21, m22 = m.reshape(-1, 9).T
     q = np.empty((len(m), 4))
