@@ -273,6 +273,36 @@ def test_inbox_handler_runs_on_zenohs_thread_message_after_message() -> None:
     assert set(threads) == {"_DummyThread"}
 
 
+def test_an_ordered_inbox_queues_two_topics_in_the_order_they_were_put() -> None:
+    """A queued node that asks for order (the recorder: ``Node.ordered``) sees two topics of one publisher in the
+    order they were put, big payloads among small ones (Zenoh keeps a session's order per priority; the queue is
+    filled by Zenoh's own receive thread, not by one binding thread per subscriber)."""
+    from cdpr.runtime.transport import PUBLISH_OPTS
+
+    endpoint = f"tcp/127.0.0.1:{free_port()}"
+    inbox = Inbox(direct=True)
+    sent: list[tuple[str, int]] = []
+    with zenoh.open(zenoh_config("peer", listen=[endpoint])) as a, \
+            zenoh.open(zenoh_config("peer", connect=[endpoint])) as b:
+        subs = [inbox.subscribe(a, f"test/fast/ordered/{name}", name) for name in ("image", "telemetry")]
+        pubs = {"image": b.declare_publisher("test/fast/ordered/image", **{**PUBLISH_OPTS, "express": False}),
+                "telemetry": b.declare_publisher("test/fast/ordered/telemetry", **PUBLISH_OPTS)}
+        deadline = time.monotonic() + 20.0  # a peer drops puts for which it knows no subscriber yet
+        while not all(p.matching_status.matching for p in pubs.values()):
+            assert time.monotonic() < deadline, "the publishers never learned of the subscribers"
+            time.sleep(0.01)
+        for i in range(200):
+            topic = "image" if i % 3 == 0 else "telemetry"
+            pubs[topic].put(i.to_bytes(4, "little") * (5000 if topic == "image" else 10))
+            sent.append((topic, i))
+        got: list[tuple[str, int]] = []
+        while len(got) < len(sent) and time.monotonic() < deadline:
+            got += [(e.topic, int.from_bytes(e.payload[:4], "little")) for e in inbox.drain(0.5)]
+        for sub in subs:
+            sub.undeclare()
+    assert got == sent
+
+
 _STORM = """
 import os, signal, sys, threading, time
 from cdpr.runtime.transport import Inbox, StopFlag

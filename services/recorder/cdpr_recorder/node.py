@@ -49,6 +49,7 @@ PLANNED_PATH_POINTS = 200
 
 class RecorderNode(Node):
     name = "recorder"
+    ordered = True  # the session's last images and frames before its last telemetry, as the sim put them
 
     def __init__(
         self,

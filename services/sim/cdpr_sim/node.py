@@ -134,7 +134,8 @@ class SimNode(Node):
             if cam.image:
                 # reliable, never dropped, in the lane of the sim's telemetry (not express: no need): an image put
                 # before the session's last state reaches the recorder before that state does (Zenoh keeps the
-                # order within a priority; an image on a lower one could come after the session's end)
+                # order within a priority, and the recorder queues its topics in that order: Node.ordered; an image on
+                # a lower priority could come after the session's end)
                 self._image_pubs[cam.name] = session.declare_publisher(self.keys.topic("camera_image", cam.name),
                                                                        **{**PUBLISH_OPTS, "express": False})
         if self.renderer is not None and (reason := self.renderer.ready()):  # before the sim says it is there

@@ -56,6 +56,11 @@ class Node:
 
     name = "node"
     direct = False  # handle events on Zenoh's receive thread (see the module docstring)
+    # queued (not direct): put on the queue by Zenoh's receive thread itself, so that the node sees its topics in
+    # the order they came (a publisher's messages keep their order per priority); by default each subscriber's
+    # samples are queued by a thread of the binding's, one per subscriber, and two topics may swap (the recorder
+    # once took the session's last telemetry before a camera image the sim had put first, and lost the image)
+    ordered = False
     # The topics this node reads and writes (names of cdpr.protocol.wiring.TOPICS): its row of the wiring
     # table, set for each subclass from its ``name``; serve() declares them. Events arrive with the topic
     # name as their ``topic``; publishers wait in ``self.publishers[topic]``.
@@ -469,7 +474,7 @@ def serve(node: Node, conf: zenoh.Config, stop: StopFlag | None = None) -> int:
         wake = threading.Event()
         dispatcher = _Dispatcher(node, on_event, wake, stop) if node.direct else None
         stop.on_set(wake.set)  # a signal wakes the main thread at once
-        inbox = Inbox(dispatcher)
+        inbox = Inbox(dispatcher, direct=node.ordered)
         if dispatcher is None:
             stop.on_set(inbox.wake)  # a queued node: ends the main thread's wait for the next event
         _freeze()  # before the token: a peer that sees it may send at once, and the collection holds the GIL
