@@ -438,7 +438,7 @@ def test_images_are_drawn_off_the_loop_and_recorded(tmp_path: Path) -> None:
                                       strict=True):
                     images[name][step] = bytes(blob[0])
     assert "camera_images_skipped" not in str(summary["faults"])  # fast mode: every image, none skipped
-    assert sorted(images["top"]) == list(range(0, 300, 20))
+    assert sorted(images["top"]) == list(range(0, 301, 20))  # the last state's too (its frame, 3 steps late: never)
     assert sorted(images["corner"]) == list(range(0, 300, 33))
     data = read_recording(rrd)
     k = data.get(recording.ACTUAL_POSITION).step
@@ -497,9 +497,9 @@ def test_the_mcap_file_holds_the_cameras(tmp_path: Path) -> None:
     assert counts["/camera/top/markers"] == 15  # every frame: steps 0, 20, …, 280
     assert counts["/camera/corner/markers"] == 10  # 0, 33, …, 297
     assert counts["/camera/top/calibration"] == 15
-    assert counts["/camera/top/image"] == 15  # fast mode: every image
+    assert counts["/camera/top/image"] == 16  # fast mode: every image, the last state's (step 300) included
     assert counts["/camera/corner/image"] == 10
-    assert jpeg == 25
+    assert jpeg == 26
     # cdpr convert --to mcap of the .rrd: the same camera channels, as many messages
     conv = subprocess.run([*CDPR, "convert", str(rrd), "--to", "mcap", "-o", str(tmp_path / "converted.mcap")],
                           capture_output=True, text=True, timeout=300)
@@ -507,7 +507,7 @@ def test_the_mcap_file_holds_the_cameras(tmp_path: Path) -> None:
     converted, converted_schemas, converted_jpeg = read(tmp_path / "converted.mcap")
     for topic in (t for t in counts if t.startswith("/camera/")):
         assert (converted[topic], converted_schemas[topic]) == (counts[topic], schemas[topic]), topic
-    assert converted_jpeg == 25
+    assert converted_jpeg == 26
 
 
 # --------------------------------------------------------------------------------------------------

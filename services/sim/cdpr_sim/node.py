@@ -163,8 +163,6 @@ class SimNode(Node):
         if again and self._state_msg is not None and self._state_msg.step == self.step:
             msg = self._state_msg
         else:
-            if self.step >= self.total_steps:
-                self.images_out()
             msg = self.sim.message(self.clamped)
             if (applied := self.applied) is not None and (applied.age or applied.watchdog):
                 msg = replace(msg, command_age=applied.age, watchdog=int(applied.watchdog))
@@ -190,6 +188,8 @@ class SimNode(Node):
             due = [c for c in self.scenario.cameras if c.image and self.step % c.every == 0]
             if due:
                 self.take_images(due, self.step, msg.t, np.array(pose[:3]), R)
+        if self.step >= self.total_steps:
+            self.images_out()  # the last state's images too, before the last telemetry block
 
     def take_images(self, cameras: list[Camera], step: int, t: float, position: np.ndarray,
                     rotation: np.ndarray) -> None:
@@ -206,7 +206,8 @@ class SimNode(Node):
         self._image_busy = self._images.submit(self._draw_images, cameras, step, t, position, rotation)
 
     def images_out(self) -> None:
-        """Fast mode: the images in hand are out before the session's last state (and so before its end)."""
+        """Fast mode: the images in hand, the last state's included, are out before the session's last telemetry
+        block (and so before its end: the recorder queues its topics in the order they came)."""
         if self._image_busy is not None and not self.paced:
             self._image_busy.result()
 
