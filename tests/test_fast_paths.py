@@ -296,6 +296,7 @@ def test_an_ordered_inbox_queues_two_topics_in_the_order_they_were_put() -> None
             pubs[topic].put(i.to_bytes(4, "little") * (5000 if topic == "image" else 10))
             sent.append((topic, i))
         got: list[tuple[str, int]] = []
+        deadline = time.monotonic() + 20.0  # bounded: every message is on its way
         while len(got) < len(sent) and time.monotonic() < deadline:
             got += [(e.topic, int.from_bytes(e.payload[:4], "little")) for e in inbox.drain(0.5)]
         for sub in subs:

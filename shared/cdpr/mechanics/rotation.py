@@ -125,29 +125,21 @@ def matrices_to_quats(R: ArrayLike) -> Array:
     raises for a matrix that is none (a negative square root), this gives NaN."""
     m = np.asarray(R, dtype=float).reshape(-1, 3, 3)
     m00, m01, m02, m10, m11, m12, m20, m21, m22 = m.reshape(-1, 9).T
-    q = np.empty((len(m), 4))
     tr = m00 + m11 + m22
-    first = tr > 0.0
-    second = ~first & (m00 > m11) & (m00 > m22)
-    third = ~first & ~second & (m11 > m22)
-    fourth = ~(first | second | third)
-    for mask, diagonal, columns in (
-        (first, lambda k: tr[k] + 1.0, lambda k, s: ((m21[k] - m12[k]) / s, (m02[k] - m20[k]) / s,
-                                                     (m10[k] - m01[k]) / s, 0.25 * s)),
-        (second, lambda k: 1.0 + m00[k] - m11[k] - m22[k], lambda k, s: (0.25 * s, (m01[k] + m10[k]) / s,
-                                                                        (m02[k] + m20[k]) / s, (m21[k] - m12[k]) / s)),
-        (third, lambda k: 1.0 + m11[k] - m00[k] - m22[k], lambda k, s: ((m01[k] + m10[k]) / s, 0.25 * s,
-                                                                       (m12[k] + m21[k]) / s, (m02[k] - m20[k]) / s)),
-        (fourth, lambda k: 1.0 + m22[k] - m00[k] - m11[k], lambda k, s: ((m02[k] + m20[k]) / s, (m12[k] + m21[k]) / s,
-                                                                        0.25 * s, (m10[k] - m01[k]) / s)),
-    ):
-        if mask.any():
-            s = 2.0 * np.sqrt(diagonal(mask))
-            q[mask] = np.column_stack(columns(mask, s))
-    x, y, z, w = q.T
+    # Shepperd's branches, as matrix_to_quat takes them: trace > 0, else the largest diagonal term x, y or z
+    b1 = tr > 0.0
+    b2 = ~b1 & (m00 > m11) & (m00 > m22)
+    b3 = ~b1 & ~b2 & (m11 > m22)
+    branches = [b1, b2, b3]
+    s = 2.0 * np.sqrt(np.select(branches, [tr + 1.0, 1.0 + m00 - m11 - m22, 1.0 + m11 - m00 - m22],
+                                1.0 + m22 - m00 - m11))
+    x = np.select(branches, [(m21 - m12) / s, 0.25 * s, (m01 + m10) / s], (m02 + m20) / s)
+    y = np.select(branches, [(m02 - m20) / s, (m01 + m10) / s, 0.25 * s], (m12 + m21) / s)
+    z = np.select(branches, [(m10 - m01) / s, (m02 + m20) / s, (m12 + m21) / s], 0.25 * s)
+    w = np.select(branches, [0.25 * s, (m21 - m12) / s, (m02 - m20) / s], (m10 - m01) / s)
     n = np.sqrt(x * x + y * y + z * z + w * w)
     n[w < 0.0] *= -1.0
-    return q / n[:, None]
+    return np.column_stack((x, y, z, w)) / n[:, None]
 
 
 def rotvec_quat(rx: float, ry: float, rz: float) -> tuple[float, float, float, float]:

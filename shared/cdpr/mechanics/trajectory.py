@@ -128,7 +128,7 @@ class Trajectory(ABC):
 
     def sample_block(self, times: ArrayLike) -> Block:
         """The setpoints at ``times`` (s, (n,)): :meth:`sample` at each, bit for bit, as a :class:`Block`
-        (a trajectory that can does it for all at once: a block of 100 costs about what 5 samples do)."""
+        (a trajectory that can samples them all at once: a block of 100 costs about what 5 samples do)."""
         samples = [self.sample(float(t)) for t in np.asarray(times, dtype=float).reshape(-1)]
         return Block(*(np.array([getattr(x, f) for x in samples]).reshape(len(samples), *shape)
                        for f, shape in (("position", (3,)), ("rotation", (3, 3)), ("twist", (6,)), ("accel", (6,)))))
