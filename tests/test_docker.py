@@ -563,6 +563,13 @@ def _study(p: Project, folder: Path, name: str, samples: int, seed: int) -> tupl
             f"ray://127.0.0.1:{p.env['CDPR_RAY_CLIENT_PORT']}"], out
 
 
+def _ray_client_logs(head: str) -> str:
+    """The head's Ray Client server logs (the proxy and each client's server): why a connection was refused."""
+    proc = _run(["docker", "exec", head, "sh", "-c",
+                 "cd /tmp/ray/session_latest/logs && tail -n 25 ray_client_server*"], timeout=60)
+    return (proc.stdout + proc.stderr)[-6000:]
+
+
 def _rows(out: Path) -> list[dict[str, str]]:
     import csv
 
@@ -594,7 +601,7 @@ def test_a_study_runs_on_a_ray_cluster_of_containers_and_survives_a_lost_worker(
     # 16 points through the two workers (their throughput: docker/README.md)
     argv, out = _study(p, tmp_path, "sixteen", 16, 2)
     run = _run(argv, timeout=900, env=HOST_ENV)
-    assert run.returncode == 0, run.stderr[-3000:] + p.report()
+    assert run.returncode == 0, run.stderr[-3000:] + _ray_client_logs(head)
     two = json.loads(run.stdout.splitlines()[-1])
     assert (two["points"], two["ok"], two["nodes"]) == (16, 16, 3), two
     spread = _rows(out)
@@ -607,7 +614,7 @@ def test_a_study_runs_on_a_ray_cluster_of_containers_and_survives_a_lost_worker(
         RAY_STUDY.format(name="four", samples=4, seed=2), encoding="utf-8")
     inside = p.compose("run", "--rm", "-T", "study", "study", "/runs/four.yaml", "--quiet", "--address",
                        "ray://ray-head:10001", "--out", "/runs/studies/four", timeout=600)
-    assert inside.returncode == 0, inside.stdout[-2000:] + inside.stderr[-3000:]
+    assert inside.returncode == 0, inside.stdout[-2000:] + inside.stderr[-3000:] + _ray_client_logs(head)
     assert json.loads(inside.stdout.strip().splitlines()[-1])["ok"] == 4
     assert len(_rows(studies / "studies" / "four")) == 4
 
@@ -620,7 +627,7 @@ def test_a_study_runs_on_a_ray_cluster_of_containers_and_survives_a_lost_worker(
     with subprocess.Popen(argv, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=HOST_ENV) as study:
         try:
             _wait_for("the study's first point", lambda: done() >= 1 or study.poll() is not None, 300, p.report)
-            assert study.poll() is None, study.communicate()[1][-3000:]
+            assert study.poll() is None, study.communicate()[1][-3000:] + _ray_client_logs(head)
             before = done()
             workers = _run(["docker", "ps", "-q", "--filter", f"label=com.docker.compose.project={p.name}",
                             "--filter", "label=com.docker.compose.service=ray-worker"]).stdout.split()
@@ -643,7 +650,7 @@ def test_a_study_runs_on_a_ray_cluster_of_containers_and_survives_a_lost_worker(
     # the same 16 points one at a time on the worker left (one Ray CPU): one session alone, in the same mode
     argv, out = _study(p, tmp_path, "one_at_a_time", 16, 2)
     run = _run(argv, timeout=900, env=HOST_ENV)
-    assert run.returncode == 0, run.stderr[-3000:] + p.report()
+    assert run.returncode == 0, run.stderr[-3000:] + _ray_client_logs(head)
     one = json.loads(run.stdout.splitlines()[-1])
     assert (one["ok"], one["nodes"]) == (16, 2), one
     assert {r["state_digest"] for r in _rows(out)} == {r["state_digest"] for r in spread}  # the same sessions

@@ -123,6 +123,51 @@ def test_without_ray_the_study_commands_say_how_to_get_it(tmp_path: Path) -> Non
         "cdpr: error: cdpr study and cdpr tune need Ray: pip install 'cdpr[study]' (ray[tune], optuna, pyarrow)"]
 
 
+# what Ray 2.60's client raises when the head's server for this driver ended at once (its proxier's traceback)
+REFUSED = ("Initialization failure from server:\nTraceback (most recent call last):\n"
+           '  File "/opt/cdpr/lib/python3.11/site-packages/ray/util/client/server/proxier.py", line 772, in Datapath\n'
+           "    raise RuntimeError(\n"
+           "RuntimeError: Starting Ray client server failed. See ray_client_server_23000.err for detailed logs.\n")
+
+
+def test_a_driver_the_cluster_refused_at_the_start_connects_again(capsys: pytest.CaptureFixture[str]) -> None:
+    from cdpr.tools.study.engine import join_cluster
+
+    calls: list[int] = []
+
+    def refused_once() -> None:  # stands in for ray.init: the head refuses the first driver, serves the next
+        calls.append(1)
+        if len(calls) == 1:
+            raise ConnectionAbortedError(REFUSED)
+
+    join_cluster(refused_once, "ray://head:10001", wait=0.0)
+    assert len(calls) == 2
+    assert capsys.readouterr().err.splitlines() == [
+        "cdpr: --address ray://head:10001: Initialization failure from server: RuntimeError: Starting Ray client "
+        "server failed. See ray_client_server_23000.err for detailed logs; connecting again in 0 s (attempt 2 of 3)"]
+
+    def refused() -> None:
+        calls.append(1)
+        raise ConnectionAbortedError(REFUSED)
+
+    calls.clear()
+    with pytest.raises(InputError) as err:
+        join_cluster(refused, "ray://head:10001", wait=0.0)
+    assert len(calls) == 3  # then it says why, in one line
+    assert str(err.value) == ("--address ray://head:10001: Initialization failure from server: RuntimeError: "
+                              "Starting Ray client server failed. See ray_client_server_23000.err for detailed logs "
+                              "(3 attempts)")
+
+    def unreachable() -> None:  # not a refusal: said at once
+        calls.append(1)
+        raise ConnectionError("ray client connection timeout")
+
+    calls.clear()
+    with pytest.raises(InputError, match=r"^--address ray://head:10001: ray client connection timeout$"):
+        join_cluster(unreachable, "ray://head:10001", wait=0.0)
+    assert len(calls) == 1
+
+
 def test_points_grids_times_draws_reproducible_and_plant_only(tmp_path: Path) -> None:
     from cdpr.config.scenario import load_scenario
     from cdpr.config.study import load_study

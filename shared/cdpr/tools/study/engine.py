@@ -13,6 +13,7 @@ import logging
 import os
 import sys
 import time
+from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -37,6 +38,10 @@ def need_ray() -> None:
         raise InputError(RAY_MISSING) from None
 
 
+CONNECT_ATTEMPTS = 3  # a cluster's Ray Client server now and then fails to start a new driver's server (below)
+CONNECT_RETRY_S = 2.0
+
+
 def connect_ray(address: str | None) -> dict[str, Any]:
     """Join the cluster at ``address`` (or $RAY_ADDRESS), else start Ray on this machine. Its resources."""
     import ray
@@ -44,14 +49,43 @@ def connect_ray(address: str | None) -> dict[str, Any]:
     if not ray.is_initialized():
         address = address or os.environ.get("RAY_ADDRESS") or None
         if address:
-            try:
-                ray.init(address=address, log_to_driver=False, logging_level=logging.WARNING)
-            except (ConnectionError, TimeoutError, ValueError, RuntimeError) as exc:  # unreachable, no Ray Client
-                first = (str(exc).strip().splitlines() or [type(exc).__name__])[0]
-                raise InputError(f"--address {address}: {first}") from None
+            join_cluster(lambda: ray.init(address=address, log_to_driver=False, logging_level=logging.WARNING),
+                         address)
         else:
             ray.init(include_dashboard=False, log_to_driver=False, logging_level=logging.WARNING)
     return {"nodes": len([n for n in ray.nodes() if n.get("Alive")]), "cpus": ray.cluster_resources().get("CPU", 0)}
+
+
+def join_cluster(init: Callable[[], object], address: str, attempts: int = CONNECT_ATTEMPTS,
+                 wait: float = CONNECT_RETRY_S) -> None:
+    """``init()`` (``ray.init`` at ``address``), tried again when the cluster refused this driver at the start.
+
+    Ray Client's head runs one server process per driver; Ray 2.60 now and then sees that process end at once
+    (``Initialization failure from server``: "SpecificServer startup failed" in the head's
+    ``ray_client_server.err``) and the next driver is served. That refusal is tried again ``attempts`` times in
+    all, ``wait`` s apart, saying so on stderr; anything else (unreachable, not a Ray Client port, versions)
+    and the last refusal are an :class:`InputError` naming the address and Ray's reason."""
+    for attempt in range(1, attempts + 1):
+        try:
+            init()
+            return
+        except ConnectionAbortedError as exc:  # the head answered and refused: its server for us did not start
+            if attempt == attempts:
+                raise InputError(f"--address {address}: {ray_reason(exc)} ({attempts} attempts)") from None
+            print(f"cdpr: --address {address}: {ray_reason(exc)}; connecting again in {wait:g} s "
+                  f"(attempt {attempt + 1} of {attempts})", file=sys.stderr, flush=True)
+            time.sleep(wait)
+        except (ConnectionError, TimeoutError, ValueError, RuntimeError) as exc:  # unreachable, no Ray Client
+            raise InputError(f"--address {address}: {ray_reason(exc)}") from None
+
+
+def ray_reason(exc: BaseException) -> str:
+    """Ray's error in one line: its first line, and the last line of the server's traceback it carries."""
+    lines = [line.strip() for line in str(exc).strip().splitlines() if line.strip()]
+    if not lines:
+        return type(exc).__name__
+    first, last = lines[0].rstrip(":"), lines[-1]
+    return (first if len(lines) == 1 else f"{first}: {last}").rstrip(".")
 
 
 class Progress:
