@@ -144,7 +144,7 @@ def test_a_driver_the_cluster_refused_at_the_start_connects_again(capsys: pytest
     assert len(calls) == 2
     assert capsys.readouterr().err.splitlines() == [
         "cdpr: --address ray://head:10001: Initialization failure from server: RuntimeError: Starting Ray client "
-        "server failed. See ray_client_server_23000.err for detailed logs; connecting again in 0 s (attempt 2 of 3)"]
+        "server failed. See ray_client_server_23000.err for detailed logs; connecting again in 0 s (attempt 2 of 5)"]
 
     def refused() -> None:
         calls.append(1)
@@ -153,10 +153,10 @@ def test_a_driver_the_cluster_refused_at_the_start_connects_again(capsys: pytest
     calls.clear()
     with pytest.raises(InputError) as err:
         join_cluster(refused, "ray://head:10001", wait=0.0)
-    assert len(calls) == 3  # then it says why, in one line
+    assert len(calls) == 5  # then it says why, in one line
     assert str(err.value) == ("--address ray://head:10001: Initialization failure from server: RuntimeError: "
                               "Starting Ray client server failed. See ray_client_server_23000.err for detailed logs "
-                              "(3 attempts)")
+                              "(5 attempts)")
 
     def unreachable() -> None:  # not a refusal: said at once
         calls.append(1)

@@ -38,7 +38,7 @@ def need_ray() -> None:
         raise InputError(RAY_MISSING) from None
 
 
-CONNECT_ATTEMPTS = 3  # a cluster's Ray Client server now and then fails to start a new driver's server (below)
+CONNECT_ATTEMPTS = 5  # a cluster's Ray Client server now and then fails to start a new driver's server (below)
 CONNECT_RETRY_S = 2.0
 
 
