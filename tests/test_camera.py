@@ -223,6 +223,33 @@ def test_frames_come_at_the_rate_after_the_latency_and_are_deterministic() -> No
     assert runs[0] == runs[1]  # a function of the seed, the camera and the step
 
 
+def test_a_suite_is_due_whenever_a_camera_exposes_or_a_frame_goes_out() -> None:
+    """CameraSuite.due (asked every step: a comparison) against its definition — a camera exposes at the step or a
+    held frame's latency has run out — on random cameras and step sequences that now and then go back (a restore):
+    never a step missed; a step said due with nothing to do only when it is not after the last one taken, where
+    step() finds nothing."""
+    from cdpr_sim.cameras import CameraSuite
+
+    rng = np.random.default_rng(0)
+    p, R = np.array([0.9, 0.9, 0.2]), np.eye(3)
+    oversaid = 0
+    for _ in range(60):
+        cams = tuple(_camera(name=f"c{i}", every=int(rng.integers(1, 30)), latency=int(rng.integers(0, 40)))
+                     for i in range(int(rng.integers(1, 4))))
+        suite, k, last = CameraSuite(cams, seed=1), 0, -1
+        for _ in range(300):
+            defined = any(k % c.every == 0 for c in cams) or any(due <= k for due, _ in suite.pending)
+            if suite.due(k):
+                frames = suite.step(k, 0.0, p, R)
+                assert defined or (k <= last and frames == []), k
+                oversaid += not defined
+                last = k
+            else:
+                assert not defined, k
+            k = max(0, k - int(rng.integers(1, 50))) if rng.random() < 0.02 else k + 1
+    assert oversaid > 0  # the sequences did go back
+
+
 def test_noise_and_dropout_have_their_statistics() -> None:
     from cdpr_sim.cameras import measure
 
@@ -264,7 +291,34 @@ def test_the_sims_fast_frames_are_the_reference_frames_bit_for_bit(seed: int) ->
                   mount_position=rng.uniform(-2, 2, 3), mount_rotation=rpy_to_matrix(*rng.uniform(-3, 3, 3)))
     p, R = rng.uniform(-1, 1, 3), rpy_to_matrix(*rng.uniform(-0.5, 0.5, 3))
     step = int(rng.integers(0, 10**6))
-    assert measure_fast(cam, 1, seed, step, 0.5, p, R) == measure(cam, 1, seed, step, 0.5, p, R)
+    reference = measure(cam, 1, seed, step, 0.5, p, R)
+    assert measure_fast(cam, 1, seed, step, 0.5, p, R) == reference
+    assert measure_fast(cam, 1, seed, step, 0.5, p, R, draws=SHARED_DRAWS) == reference  # the sim's draws
+
+
+def _shared_draws() -> Any:
+    from cdpr_sim.cameras import FrameDraws
+
+    return FrameDraws()
+
+
+SHARED_DRAWS = _shared_draws()  # one generator for every example, as the sim has one for all its frames
+
+
+@settings(max_examples=300, deadline=None)
+@given(st.lists(st.integers(0, 2**70), min_size=1, max_size=6), st.integers(1, 12))
+def test_frame_draws_are_numpys_default_rng_draws(entropy: list[int], n: int) -> None:
+    """The sim's frame draws (SeedSequence and PCG64's seeding on Python ints, one generator reused) are numpy's
+    own: the state of PCG64(SeedSequence(entropy)) for any entropy (one to several 32-bit words per value, more
+    words than SeedSequence's pool), and the frame's noise and dropouts from default_rng([seed, index, step])."""
+    from cdpr_sim.cameras import _draws, pcg64_state
+
+    reference = np.random.PCG64(np.random.SeedSequence(entropy)).state["state"]
+    assert pcg64_state(entropy) == (reference["state"], reference["inc"])
+    cam = _camera(pixel_sigma=0.7, dropout=0.3)
+    seed, index, step = [*entropy, 0, 0, 0][:3]
+    for got, want in zip(SHARED_DRAWS(cam, index, seed, step, n), _draws(cam, index, seed, step, n), strict=True):
+        np.testing.assert_array_equal(got, want)
 
 
 def _up_with_cdpr_controller(plant: str | Path, controller: str | Path, session_id: str, duration: str,
