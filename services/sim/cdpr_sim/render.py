@@ -4,9 +4,10 @@ The scene is the frame's box (its edges), the cables (straight, platform end to 
 platform, which hides those behind it), the platform (its shape's faces, shaded by how squarely each faces the
 camera, farthest first) and the markers (a dot and the marker's id). Every point goes through the camera's own
 projection, lens distortion included (:func:`cdpr.mechanics.camera.project`); a line is drawn as short
-segments so that it bends as the lens bends it, and the part of a segment behind the camera is cut off.
-About 1 ms for 640 × 480 on one core here (the backdrop of a camera on the frame drawn once), 0.5 ms more to
-encode it as JPEG. Needs ``opencv-python-headless`` (``pip install 'cdpr[camera]'``), imported by the image
+segments so that it bends as the lens bends it, and the part of a segment behind the camera is cut off (all the
+cables' segments projected at once, and drawn in one OpenCV call). About 0.5 ms for 640 × 480 on one core here
+(the backdrop of a camera on the frame drawn once), 0.45 ms more to encode it as JPEG. Needs
+``opencv-python-headless`` (``pip install 'cdpr[camera]'``), imported by the image
 process as it starts (or at the first image drawn in this process)."""
 
 from __future__ import annotations
@@ -68,6 +69,7 @@ class Renderer:
         background[:] = BACKGROUND  # (numpy takes ~1 ms to fill 640 × 480 pixels with a colour; a copy ~0.05 ms)
         self._background = background
         self._backdrop: NDArray[np.uint8] | None = None  # a frame camera's background with the frame's edges
+        self._faces = np.array(BOX_FACES)
 
     def _fresh_image(self, cam_p: Array, cam_R: Array) -> NDArray[np.uint8]:
         """A new image with the background and the frame's edges drawn, the camera at ``cam_p``/``cam_R`` (for a
@@ -75,31 +77,34 @@ class Renderer:
         if self._backdrop is not None:
             return self._backdrop.copy()
         img = self._background.copy()
-        for a, b in self.frame_edges:
-            self._line(img, a, b, cam_p, cam_R, FRAME_COLOR, 1)
+        a, b = (np.array(ends) for ends in zip(*self.frame_edges, strict=True))
+        self._lines(img, a, b, cam_p, cam_R, FRAME_COLOR, 1)
         if not self.camera.on_platform:
             self._backdrop = img.copy()
         return img
 
-    def _line(self, img: Any, a: Array, b: Array, cam_p: Array, cam_R: Array, color: tuple[int, int, int],
-              width: int) -> None:
+    def _lines(self, img: Any, a: Array, b: Array, cam_p: Array, cam_R: Array, color: tuple[int, int, int],
+               width: int) -> None:
+        """The lines from ``a[i]`` to ``b[i]`` (n, 3), each as :data:`SEGMENTS` pieces (the lens bends lines), in
+        one projection and one OpenCV call: a line's points behind the near plane or where the lens model no longer
+        holds are left out (a distortion polynomial folds back far outside the image); a line with fewer than two
+        points left is not drawn."""
         cv2 = _cv2()
-        pts = a + np.linspace(0.0, 1.0, SEGMENTS + 1)[:, None] * (b - a)
-        depth = (pts - cam_p) @ cam_R[:, 2]
+        pts = a[:, None, :] + np.linspace(0.0, 1.0, SEGMENTS + 1)[None, :, None] * (b - a)[:, None, :]
+        local = (pts.reshape(-1, 3) - cam_p) @ cam_R
+        depth = local[:, 2]
         keep = depth > NEAR
-        if keep.sum() < 2:
-            return
-        pts = pts[keep]
-        local = (pts - cam_p) @ cam_R
-        # only where the lens model holds: a distortion polynomial folds back far outside the image
-        radius = np.hypot(local[:, 0], local[:, 1]) / local[:, 2]
-        pts = pts[radius <= self.max_radius]
-        if len(pts) < 2:
-            return
-        uv = project(pts, cam_p, cam_R, self.camera.intrinsics, near=NEAR).pixels
-        uv = uv[np.isfinite(uv).all(axis=1)]
-        if len(uv) >= 2:
-            cv2.polylines(img, [np.round(uv * 16).astype(np.int32)], False, color, width, cv2.LINE_AA, 4)
+        with np.errstate(divide="ignore", invalid="ignore"):
+            keep &= np.hypot(local[:, 0], local[:, 1]) / depth <= self.max_radius
+        uv = project(pts.reshape(-1, 3)[keep], cam_p, cam_R, self.camera.intrinsics, near=NEAR).pixels
+        lines = np.full((len(depth), 2), np.nan)
+        lines[keep] = uv
+        lines = lines.reshape(len(a), SEGMENTS + 1, 2)
+        finite = np.isfinite(lines).all(axis=2)
+        rounded = np.round(np.where(finite[:, :, None], lines, 0.0) * 16).astype(np.int32)
+        drawn = [line[ok] for line, ok in zip(rounded, finite, strict=True) if ok.sum() >= 2]
+        if drawn:
+            cv2.polylines(img, drawn, False, color, width, cv2.LINE_AA, 4)
 
     def draw(self, position: ArrayLike, rotation: ArrayLike) -> NDArray[np.uint8]:
         """The image (height, width, 3), RGB, uint8, with the platform at ``position``/``rotation``."""
@@ -108,30 +113,26 @@ class Renderer:
         p, R = np.asarray(position, dtype=float), np.asarray(rotation, dtype=float)
         cam_p, cam_R = cam.pose(p, R)
         img = self._fresh_image(cam_p, cam_R)
-        # the platform's faces, farthest first; each shaded by the cosine between its normal and the view
-        corners = p + self.platform_corners @ R.T
-        faces = []
-        for face in BOX_FACES:
-            quad = corners[list(face)]
-            centre = quad.mean(axis=0)
-            normal = np.cross(quad[1] - quad[0], quad[3] - quad[0])
-            normal /= np.linalg.norm(normal)
-            if np.dot(normal, centre - p) < 0:
-                normal = -normal  # outward
-            to_camera = cam_p - centre
-            distance = float(np.linalg.norm(to_camera))
-            if np.dot(normal, to_camera) <= 0 or ((quad - cam_p) @ cam_R[:, 2] <= NEAR).any():
-                continue  # facing away, or crossing the camera's near plane
-            faces.append((distance, quad, float(np.dot(normal, to_camera)) / distance))
         anchors = p + self.robot.platform_points @ R.T
         exits = self.robot.frame_points if self.robot.pulleys is None else pulley_geometry(  # or their pulleys'
             self.robot.frame_points, self.robot.pulleys, anchors).tangent_points
-        for a, b in zip(anchors, exits, strict=True):  # under the platform: hidden behind it
-            self._line(img, a, b, cam_p, cam_R, CABLE_COLOR, 1)
-        for _, quad, light in sorted(faces, key=lambda f: -f[0]):
-            uv = project(quad, cam_p, cam_R, k, near=NEAR).pixels
-            color = tuple(int(c) for c in PLATFORM_COLOR * (0.45 + 0.55 * light))
-            cv2.fillConvexPoly(img, np.round(uv * 16).astype(np.int32), color, cv2.LINE_AA, 4)
+        self._lines(img, anchors, np.asarray(exits, dtype=float), cam_p, cam_R, CABLE_COLOR, 1)  # under the platform
+        # the platform's faces, farthest first; each shaded by the cosine between its normal and the view
+        quads = (p + self.platform_corners @ R.T)[self._faces]  # (6, 4, 3)
+        centres = quads.mean(axis=1)
+        normals = np.cross(quads[:, 1] - quads[:, 0], quads[:, 3] - quads[:, 0])
+        normals /= np.linalg.norm(normals, axis=1)[:, None]
+        normals *= np.where(np.einsum("ij,ij->i", normals, centres - p) < 0, -1.0, 1.0)[:, None]  # outward
+        to_camera = cam_p - centres
+        distances = np.linalg.norm(to_camera, axis=1)
+        facing = np.einsum("ij,ij->i", normals, to_camera)
+        shown = (facing > 0) & (((quads - cam_p) @ cam_R[:, 2] > NEAR).all(axis=1))  # not crossing the near plane
+        order = [i for i in np.argsort(-distances, kind="stable") if shown[i]]
+        if order:
+            uv = project(quads[order].reshape(-1, 3), cam_p, cam_R, k, near=NEAR).pixels.reshape(len(order), 4, 2)
+            for i, face in zip(order, np.round(uv * 16).astype(np.int32), strict=True):
+                color = tuple(int(c) for c in PLATFORM_COLOR * (0.45 + 0.55 * facing[i] / distances[i]))
+                cv2.fillConvexPoly(img, face, color, cv2.LINE_AA, 4)
         seen = cam.observe(p, R)
         for j in np.flatnonzero(seen.visible):
             u, v = seen.pixels[j]
