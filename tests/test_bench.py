@@ -39,7 +39,7 @@ def bench(tmp_path_factory: pytest.TempPathFactory) -> tuple[dict, str]:
 
 def test_top_level_and_machine(bench: tuple[dict, str]) -> None:
     r, _ = bench
-    assert r["version"] == 11
+    assert r["version"] == 12
     assert r["quick"] is True
     assert r["scenario"] == "caroca_15kg"
     for key in ("plan", "machine", "started", "elapsed_s", "monolithic", "distributed", "loops", "deliveries",

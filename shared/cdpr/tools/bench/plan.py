@@ -5,7 +5,7 @@ from __future__ import annotations
 import sys
 from dataclasses import dataclass
 
-BENCH_VERSION = 11  # 2: loop variants (recording, in-process), deliveries, start-up; 3: the recorder writing
+BENCH_VERSION = 12  # 2: loop variants (recording, in-process), deliveries, start-up; 3: the recorder writing
 # an .rrd and an .mcap (loops.multi_process_recording_both, loops.recording_both_cost, its target); 4: the
 # monolithic loop measured before each run of a variant (M A M B M C M D), no longer first and apart; 5: the
 # MuJoCo peer (mujoco: its loop beside the monolithic one, the engines' agreement; its target); 6: realtime paced by
@@ -14,7 +14,8 @@ BENCH_VERSION = 11  # 2: loop variants (recording, in-process), deliveries, star
 # controller's (ros2); 8: what cameras cost (cameras); 9: the Gymnasium environment's speed (gym); 10: the cameras'
 # costs from rounds of adjacent runs (the median of each round's ratio), realtime in rounds too; the ros2 node in
 # the sim's process (sim+ros2); 11: the MuJoCo peer takes its setpoints in the monolithic loop's blocks (the
-# trajectory's block sample, as the node publishes them)
+# trajectory's block sample, as the node publishes them); 12: the cameras part's realtime in 5 rounds (its
+# rounds' drops spread over ±0.3 points: the median of 3 moved by as much as the target)
 
 
 @dataclass(frozen=True)
@@ -40,7 +41,7 @@ class BenchPlan:
     camera_duration: float = 4.0  # sim seconds of each fast-mode session of the cameras part
     camera_repeats: int = 8  # rounds of (no camera, features, images)
     camera_realtime_duration: float = 15.0  # sim seconds of each realtime session of the cameras part
-    camera_realtime_repeats: int = 3  # rounds of (no camera, images) in realtime
+    camera_realtime_repeats: int = 5  # rounds of (no camera, images) in realtime
     gym_duration: float | None = None  # sim seconds of each episode of the gym part (None: the scenario's)
     gym_rounds: int = 3  # rounds of (monolithic, env) per action space
     gym_session_duration: float = 4.0  # sim seconds of the session-mode episode
