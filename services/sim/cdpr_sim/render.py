@@ -97,9 +97,9 @@ class Renderer:
         with np.errstate(divide="ignore", invalid="ignore"):
             keep &= np.hypot(local[:, 0], local[:, 1]) / depth <= self.max_radius
         uv = project(pts.reshape(-1, 3)[keep], cam_p, cam_R, self.camera.intrinsics, near=NEAR).pixels
-        lines = np.full((len(depth), 2), np.nan)
-        lines[keep] = uv
-        lines = lines.reshape(len(a), SEGMENTS + 1, 2)
+        pixels = np.full((len(depth), 2), np.nan)
+        pixels[keep] = uv
+        lines = pixels.reshape(len(a), SEGMENTS + 1, 2)
         finite = np.isfinite(lines).all(axis=2)
         rounded = np.round(np.where(finite[:, :, None], lines, 0.0) * 16).astype(np.int32)
         drawn = [line[ok] for line, ok in zip(rounded, finite, strict=True) if ok.sum() >= 2]
