@@ -58,8 +58,8 @@ class Renderer:
         lo, hi = robot.frame_min, robot.frame_max
         corners = np.array([[hi[0] if i & 1 else lo[0], hi[1] if i & 2 else lo[1], hi[2] if i & 4 else lo[2]]
                             for i in range(8)])
-        self.frame_edges = [(corners[a], corners[b]) for a in range(8) for b in range(a + 1, 8)
-                            if bin(a ^ b).count("1") == 1]
+        edges = [(a, b) for a in range(8) for b in range(a + 1, 8) if bin(a ^ b).count("1") == 1]
+        self.frame_edges = (corners[[a for a, _ in edges]], corners[[b for _, b in edges]])  # their two ends (12, 3)
         size = robot.shape.size
         half = [s / 2.0 for s in size] if robot.shape.type == "box" else [size[0]] * 3
         self.platform_corners = box_corners(half)
@@ -77,8 +77,7 @@ class Renderer:
         if self._backdrop is not None:
             return self._backdrop.copy()
         img = self._background.copy()
-        a, b = (np.array(ends) for ends in zip(*self.frame_edges, strict=True))
-        self._lines(img, a, b, cam_p, cam_R, FRAME_COLOR, 1)
+        self._lines(img, *self.frame_edges, cam_p, cam_R, FRAME_COLOR, 1)
         if not self.camera.on_platform:
             self._backdrop = img.copy()
         return img
