@@ -22,6 +22,7 @@ from cdpr.config.scenario import load_scenario
 from cdpr.errors import InputError
 from cdpr.mechanics.camera import Camera, Intrinsics, look_at, project
 from cdpr.mechanics.rotation import quat_matrix, rpy_to_matrix
+from cdpr_sim.cameras import FrameDraws
 from conftest import CDPR, free_port, last_json_line
 
 SCENARIOS = Path(__file__).resolve().parent.parent / "shared" / "cdpr" / "scenarios"
@@ -296,13 +297,7 @@ def test_the_sims_fast_frames_are_the_reference_frames_bit_for_bit(seed: int) ->
     assert measure_fast(cam, 1, seed, step, 0.5, p, R, draws=SHARED_DRAWS) == reference  # the sim's draws
 
 
-def _shared_draws() -> Any:
-    from cdpr_sim.cameras import FrameDraws
-
-    return FrameDraws()
-
-
-SHARED_DRAWS = _shared_draws()  # one generator for every example, as the sim has one for all its frames
+SHARED_DRAWS = FrameDraws()  # one generator for every example, as the sim has one for all its frames
 
 
 @settings(max_examples=300, deadline=None)
