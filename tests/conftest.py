@@ -106,3 +106,17 @@ def demo_recording(tmp_path_factory: pytest.TempPathFactory) -> tuple[dict, Path
     proc = cdpr("run", "caroca_15kg", "--rrd", str(rrd), "--session", f"demo{uuid.uuid4().hex[:8]}", "--quiet",
                 timeout=600, check=True)
     return last_json_line(proc.stdout), rrd
+
+
+@pytest.fixture(scope="session")
+def sdk_env(tmp_path_factory: pytest.TempPathFactory) -> dict[str, str]:
+    """The environment of a zenoh-ros2-sdk process (a ROS 2 peer written by someone else): its message cache
+    offline (no git clone from GitHub), and a git configuration of its own (the SDK marks its cache as a git
+    safe.directory in the global one)."""
+    from cdpr.tools.bench.ros2_messages import make_cache
+
+    root = tmp_path_factory.mktemp("ros2")
+    env = {**os.environ, "ZENOH_ROS2_SDK_CACHE": str(make_cache(root / "cache")),
+           "GIT_CONFIG_GLOBAL": str(root / "gitconfig"), "ROS_DOMAIN_ID": "0"}
+    (root / "gitconfig").write_text("")
+    return env

@@ -5,8 +5,19 @@
 session's :class:`~cdpr.protocol.Command` (:meth:`Bridge.command`): a ``joint_commands`` JointState is bound
 to the state whose stamp it carries, a ``tension_commands`` Float64MultiArray to the oldest state not yet
 answered (free-running: the newest published, answered or not, so that it acts at once, as a command does
-under Gazebo). Anything else raises :class:`RosCommandError` with a one-line reason naming the field.
-docs/ros2.md.
+under Gazebo) — unless it is a repeated answer to the state answered last (below). Anything else raises
+:class:`RosCommandError` with a one-line reason naming the field. docs/ros2.md.
+
+An unstamped command says nothing of the state it answers, and a state may be published more than once (the
+clock repeats state 0 until the loop has been heard once, and asks for a state again after a stall): a
+controller then answers it once or more (once when its callbacks merge the copies). A second answer that
+comes after the next state went out must not be taken for that state's (every later command would be one
+state late: the platform is thrown). So, lock-step, the bridge counts the publications of the state it took
+an unstamped command for last, and the commands it took or dropped for it: while fewer than the
+publications, a command bit-identical to the one it took is a repeat, dropped (``repeated_ros2_commands``);
+any other command answers the state awaiting one. Once the clock asks again for the state awaiting its
+command (a stall), no repeat of the state before it is expected any more.
+
 """
 
 from __future__ import annotations
@@ -61,6 +72,12 @@ class Bridge:
         self.free = False
         self.newest: State | None = None  # the last state published with its setpoint
         self.pending: OrderedDict[tuple[int, int], State] = OrderedDict()  # published, not answered: by stamp
+        # unstamped lock-step commands (module docstring): each state's publications to the controller (from the
+        # state answered last on), the step and values of the command taken last, the answers still possible
+        # to it (its publications, less the commands taken or dropped as its repeats)
+        self.copies: dict[int, int] = {}
+        self.taken: tuple[int, tuple[float, ...]] | None = None
+        self.repeats = 0
 
     @classmethod
     def from_scenario(cls, scenario: Scenario) -> Bridge:
@@ -92,10 +109,20 @@ class Bridge:
         self.pending.move_to_end(t)
         while len(self.pending) > MAX_PENDING:
             self.pending.popitem(last=False)
+        if "joint_states" in wanted and not self.free:
+            copies = self.copies[state.step] = self.copies.get(state.step, 0) + 1
+            if copies > 1 and (self.taken is None or state.step > self.taken[0]):
+                self.repeats = 0  # asked for again while awaiting its command: nothing more comes for the one before
         if setpoint is None:
             return self.state_messages(state, wanted)
         return [*setpoint_messages(state.t, setpoint.pose, setpoint.twist, setpoint.accel, wanted),
                 *self.state_messages(state, wanted)]
+
+    def new_controller(self) -> None:
+        """Another controller took the role: it answers the publications from now on (the state awaiting its
+        command is published again when the session resumes)."""
+        self.copies.clear()
+        self.taken, self.repeats = None, 0
 
     def setpoint_messages(self, setpoint: Setpoint, wanted: Container[str] = STEP_TOPICS) -> Payloads:
         """Setpoint k's topics among ``wanted`` ahead of state k, stamped with its own time, k·dt as state k's
@@ -135,7 +162,7 @@ class Bridge:
         elif self.free:
             state = self.newest  # it acts from the sim's next step, whatever it answered
         else:
-            state = next(iter(self.pending.values()), None)
+            state = self._unstamped(tuple(values))
         if state is None:
             raise RosCommandError("Float64MultiArray: no state awaits a command", "unmatched_ros2_commands")
         for key in [k for k, s in self.pending.items() if s.step <= state.step]:
@@ -144,6 +171,20 @@ class Bridge:
         if self.output == "lengths":
             return Command(state.step, state.t, (), True, "ok", values)
         return Command(state.step, state.t, values)
+
+    def _unstamped(self, values: tuple[float, ...]) -> State | None:
+        """The state an unstamped lock-step command answers: the oldest awaiting one, unless the command is a
+        repeated answer to the state taken last (module docstring): then RosCommandError."""
+        if self.repeats > 0 and self.taken is not None and values == self.taken[1]:
+            self.repeats -= 1
+            raise RosCommandError(f"Float64MultiArray: a repeated answer to state {self.taken[0]} (published "
+                                  "again, answered already)", "repeated_ros2_commands")
+        state = next(iter(self.pending.values()), None)
+        if state is not None:
+            self.taken, self.repeats = (state.step, values), self.copies.get(state.step, 1) - 1
+            for step in [k for k in self.copies if k < state.step]:
+                del self.copies[step]
+        return state
 
     def _ordered(self, names: tuple[str, ...], values: tuple[float, ...], field: str) -> tuple[float, ...]:
         """``values`` in cable order: by ``names`` when given (any order), else as they come."""

@@ -243,6 +243,7 @@ class Ros2Node(Node):
         assert self.session is not None
         if controllers and not was:
             log(self.name, f"a ROS 2 controller joined (Zenoh session {controllers[0]}): in the controller's role")
+            self.bridge.new_controller()
             self.controller_token = self.session.liveliness().declare_token(self.keys.alive("controller"))
         elif was and not controllers:
             log(self.name, "the ROS 2 controller left: the session waits for it")

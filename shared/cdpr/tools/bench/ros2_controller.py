@@ -113,6 +113,8 @@ def main() -> None:
     ap.add_argument("--router-port", type=int, default=7447)
     ap.add_argument("--unstamped", action="store_true", help="tension_commands (Float64MultiArray)")
     ap.add_argument("--node-name", default="pd_controller")
+    ap.add_argument("--slow-start", type=float, default=0.0, metavar="SECONDS",
+                    help="wait this long before the first answer (a slow start: the session repeats state 0 meanwhile)")
     args = ap.parse_args()
     ns, port, node = args.namespace.rstrip("/"), args.router_port, args.node_name
     common = {"node_name": node, "router_port": port}
@@ -153,6 +155,7 @@ def main() -> None:
     parts: dict[tuple[int, int], dict] = {}
     lock = threading.Lock()
     answered = [0]
+    slow_start = [args.slow_start] if args.slow_start > 0 else []
     needed = ("joint_states", "pose", "twist", "sp_pose", "sp_twist", "sp_accel")
 
     def receive(name: str):
@@ -166,6 +169,8 @@ def main() -> None:
                 del parts[stamp]
                 for old in [s for s in parts if s < stamp]:
                     del parts[old]
+                if slow_start:  # once, holding the lock: every other callback waits too
+                    time.sleep(slow_start.pop())
             pose = step["pose"].pose
             sp = step["sp_pose"].pose
             t = law.tensions(
