@@ -21,8 +21,11 @@ $(VENV)/.installed: pyproject.toml
 demo: .venv
 	$(VENV)/bin/cdpr run caroca_15kg --rrd runs/caroca_15kg.rrd --summary runs/caroca_15kg.summary.json
 
+# The whole suite on every core (pytest-xdist: TEST_JOBS workers, each module on one worker, the costly ones
+# first: tests/conftest.py), then the 20 slowest tests. TEST_JOBS=0: one process.
+TEST_JOBS ?= auto
 test: .venv
-	$(PY) -m pytest $(PYTEST_ARGS)
+	$(PY) -m pytest -n $(TEST_JOBS) --dist loadscope --durations=20 $(PYTEST_ARGS)
 
 # `make test-docker`: tests/test_docker.py (pytest -m docker; `make test` leaves them out): builds the
 # three images of docker/Dockerfile and runs compose sessions end to end. BASE is the images' base:

@@ -10,7 +10,7 @@ import subprocess
 import sys
 import time
 import uuid
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from pathlib import Path
 
 import pytest
@@ -99,13 +99,38 @@ def session_id() -> Iterator[str]:
 ARTIFACTS = Path(__file__).resolve().parents[1] / "test-artifacts"
 
 
+def run_once(tmp_path_factory: pytest.TempPathFactory, name: str, make: Callable[[Path], dict]) -> tuple[dict, Path]:
+    """``make(directory)`` run once per test session, however many pytest-xdist workers ask: the first one runs it
+    (under a file lock, in a directory all workers share) and keeps its JSON result, the others wait and read
+    it. Returns (result, directory). A ``make`` that raises fails every test that asks (each tries again)."""
+    from filelock import FileLock
+
+    base = tmp_path_factory.getbasetemp()
+    if os.environ.get("PYTEST_XDIST_WORKER"):
+        base = base.parent  # pytest-of-<user>/pytest-N/: the workers' basetemps are popen-gwK/ below it
+    directory = base / f"once-{name}"
+    with FileLock(str(directory) + ".lock"):
+        result = directory / "result.json"
+        if result.exists():
+            return json.loads(result.read_text()), directory
+        directory.mkdir(exist_ok=True)
+        value = make(directory)
+        result.write_text(json.dumps(value))
+        return value, directory
+
+
 @pytest.fixture(scope="session")
 def demo_recording(tmp_path_factory: pytest.TempPathFactory) -> tuple[dict, Path]:
-    """The demo (`make demo`'s run: the whole 15 kg CAROCA scenario), recorded once per test session."""
-    rrd = tmp_path_factory.mktemp("demo") / "caroca_15kg.rrd"
-    proc = cdpr("run", "caroca_15kg", "--rrd", str(rrd), "--session", f"demo{uuid.uuid4().hex[:8]}", "--quiet",
-                timeout=600, check=True)
-    return last_json_line(proc.stdout), rrd
+    """The demo (`make demo`'s run: the whole 15 kg CAROCA scenario), recorded once per test session: its
+    summary and its .rrd (``.with_suffix(".mcap")``: the same session as MCAP)."""
+    def run(directory: Path) -> dict:
+        rrd = directory / "caroca_15kg.rrd"
+        proc = cdpr("run", "caroca_15kg", "--rrd", str(rrd), "--mcap", str(rrd.with_suffix(".mcap")),
+                    "--session", f"demo{uuid.uuid4().hex[:8]}", "--quiet", timeout=600, check=True)
+        return last_json_line(proc.stdout)
+
+    summary, directory = run_once(tmp_path_factory, "demo", run)
+    return summary, directory / "caroca_15kg.rrd"
 
 
 @pytest.fixture(scope="session")
