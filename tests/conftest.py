@@ -3,14 +3,16 @@
 from __future__ import annotations
 
 import contextlib
+import functools
 import json
 import os
+import shutil
 import signal
 import subprocess
 import sys
 import time
 import uuid
-from collections.abc import Callable, Iterator
+from collections.abc import Callable, Iterator, Sequence
 from pathlib import Path
 
 import pytest
@@ -97,6 +99,24 @@ def session_id() -> Iterator[str]:
 
 
 ARTIFACTS = Path(__file__).resolve().parents[1] / "test-artifacts"
+
+RT_PRIORITY = 20  # SCHED_FIFO priority of the realtime tests' processes
+
+
+@functools.cache
+def realtime_scheduling() -> bool:
+    """Whether tests may run processes under SCHED_FIFO (root, or CAP_SYS_NICE with an rtprio limit: CI)."""
+    from cdpr.tools.bench import rt_priority_allowed
+
+    return shutil.which("chrt") is not None and rt_priority_allowed(RT_PRIORITY)
+
+
+def realtime(argv: Sequence[str]) -> list[str]:
+    """``argv`` under SCHED_FIFO at :data:`RT_PRIORITY` where that is permitted (``chrt``; its children inherit
+    it), else as it is. A test whose outcome is a wall-clock figure (steps on time, command ages, the watchdog)
+    runs its session's processes so — as a realtime deployment does (docs/realtime.md: ``--rt-priority``) — so
+    that the suite's other workers and a CPU burner at normal priority do not decide it."""
+    return ["chrt", "--fifo", str(RT_PRIORITY), *argv] if realtime_scheduling() else list(argv)
 
 
 def run_once(tmp_path_factory: pytest.TempPathFactory, name: str, make: Callable[[Path], dict]) -> tuple[dict, Path]:

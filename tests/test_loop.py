@@ -11,6 +11,7 @@ import subprocess
 import sys
 import threading
 import time
+import uuid
 from pathlib import Path
 from typing import Any
 
@@ -22,14 +23,15 @@ from cdpr import recording
 from cdpr.protocol import PROTOCOL_VERSION, Command, Keys, Status
 from cdpr.runtime.transport import zenoh_config
 from cdpr.tools.bench import rt_priority_allowed
-from conftest import CDPR, cdpr, free_port, last_json_line, processes_mentioning, wait_no_processes
+from conftest import CDPR, cdpr, free_port, last_json_line, processes_mentioning, run_once, wait_no_processes
 
 pytestmark = pytest.mark.slow
 
 
-def test_full_15kg_run_tracks_the_trajectory(session_id: str) -> None:
-    proc = cdpr("run", "caroca_15kg", "--session", session_id, "--quiet", timeout=300, check=True)
-    s = last_json_line(proc.stdout)
+def test_full_15kg_run_tracks_the_trajectory(demo_recording: tuple[dict, Path]) -> None:
+    """The whole caroca_15kg session (`cdpr run caroca_15kg`): the demo's, recorded once per test session
+    (tests/conftest.py), whose recorder is the one service more."""
+    s, _ = demo_recording
     assert s["exit_ok"] is True
     assert s["steps"] == s["total_steps"] == 11000
     assert math.isclose(s["sim_time"], 11.0)
@@ -37,16 +39,32 @@ def test_full_15kg_run_tracks_the_trajectory(session_id: str) -> None:
     assert s["rms_position_error"] < 1e-3
     assert 1.0 <= s["tension_min"] <= s["tension_max"] <= 6500.0
     assert s["clamped_commands"] == 0
-    assert s["exit_codes"] == {"clock": 0, "sim": 0, "trajectory": 0, "controller": 0}
+    assert s["exit_codes"] == {"clock": 0, "sim": 0, "trajectory": 0, "controller": 0, "recorder": 0}
     assert s["rate"] > 0
     assert s["rtf"] > 0
 
 
-def test_fast_runs_are_bit_identical(session_id: str) -> None:
+def caroca_15kg_for_half_a_second(tmp_path_factory: pytest.TempPathFactory) -> dict:
+    """The summary of `cdpr run caroca_15kg --duration 0.5`, run once per test session (run_once: whichever module
+    asks first), for the tests that compare a run of their own with it (here and tests/test_ups.py)."""
+    def run(directory: Path) -> dict:
+        proc = cdpr("run", "caroca_15kg", "--duration", "0.5", "--session", f"half{uuid.uuid4().hex[:8]}", "--quiet",
+                    check=True)
+        return last_json_line(proc.stdout)
+
+    return run_once(tmp_path_factory, "caroca_15kg-0.5s", run)[0]
+
+
+def test_fast_runs_are_bit_identical(session_id: str, tmp_path_factory: pytest.TempPathFactory) -> None:
+    """Two runs of caroca_15kg, the session's shared one and one of this test's own, started apart."""
     digests = []
     for i in range(2):
-        proc = cdpr("run", "caroca_15kg", "--duration", "0.5", "--session", f"{session_id}{i}", "--quiet", check=True)
-        s = last_json_line(proc.stdout)
+        if i == 0:
+            s = caroca_15kg_for_half_a_second(tmp_path_factory)
+        else:
+            proc = cdpr("run", "caroca_15kg", "--duration", "0.5", "--session", f"{session_id}{i}", "--quiet",
+                        check=True)
+            s = last_json_line(proc.stdout)
         assert s["steps"] == 500
         digests.append(s["state_digest"])
     assert digests[0] == digests[1]

@@ -4,22 +4,26 @@ link, the deterministic command latency, the sim's watchdog, cdpr ping. Services
 on loopback; the README's remote controller (examples/remote_controller.py) is the controller where the
 issue says so.
 
-The wall-clock figures (steps on time) depend on this machine's load as much as on the project: where a
-sleeping probe beside the session (cdpr bench's) itself wakes late more often than the bar allows, the test
-compares with the probe's figure instead, as docs/benchmarks.md does.
+The wall-clock figures (steps on time, command ages, the watchdog) depend on the machine's load as much as on
+the project: the realtime sessions' processes, the link and the measurements of it run under SCHED_FIFO where
+that is permitted (conftest.realtime), as a realtime deployment does, so that the suite's other workers or a
+CPU burner do not decide them; where a sleeping probe beside the session (cdpr bench's) itself wakes late more
+often than the bar allows, the test compares with the probe's figure instead, as docs/benchmarks.md does.
 """
 
 from __future__ import annotations
 
+import contextlib
 import itertools
 import json
 import math
 import re
 import signal
-import statistics
+import socket
 import subprocess
 import sys
 import time
+from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
@@ -32,9 +36,7 @@ from cdpr.config.scenario import load_scenario
 from cdpr.protocol import Keys, State, Telemetry, Tick
 from cdpr.runtime.transport import zenoh_config
 from cdpr.tools.bench.loops import SleeperProbe
-from cdpr.tools.netdelay import DelayProxy
-from cdpr.tools.ping import ping
-from conftest import CDPR, ROOT, free_port, last_json_line
+from conftest import CDPR, ROOT, free_port, last_json_line, realtime
 
 pytestmark = pytest.mark.slow
 
@@ -59,20 +61,53 @@ def _scenario(tmp_path: Path, name: str, **changes: Any) -> Path:
 
 
 def _up(scenario: str | Path, session_id: str, endpoint: str, *extra: str) -> subprocess.Popen[str]:
-    return subprocess.Popen([*CDPR, "up", str(scenario), "--session", session_id, "--without", "controller",
-                             "--listen", endpoint, "--quiet", *extra],
+    """``cdpr up`` without its controller; a realtime one (``--mode realtime`` in ``extra``) under SCHED_FIFO."""
+    argv = [*CDPR, "up", str(scenario), "--session", session_id, "--without", "controller", "--listen", endpoint,
+            "--quiet", *extra]
+    return subprocess.Popen(realtime(argv) if "realtime" in extra else argv,
                             stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
 
 
-def _remote_controller(session_id: str, endpoint: str) -> subprocess.Popen[str]:
-    return subprocess.Popen([sys.executable, str(EXAMPLE), "--connect", endpoint, "--session", session_id,
-                             "--idle-timeout", "60"],
-                            stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
+def _remote_controller(session_id: str, endpoint: str, rt: bool = True) -> subprocess.Popen[str]:
+    argv = [sys.executable, str(EXAMPLE), "--connect", endpoint, "--session", session_id, "--idle-timeout", "60"]
+    return subprocess.Popen(realtime(argv) if rt else argv, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE,
+                            text=True)
 
 
 def _controller(scenario: str | Path, session_id: str, endpoint: str) -> subprocess.Popen[str]:
-    return subprocess.Popen([*CDPR, "controller", str(scenario), "--session", session_id, "--zenoh-mode", "client",
-                             "--connect", endpoint], stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
+    return subprocess.Popen(realtime([*CDPR, "controller", str(scenario), "--session", session_id, "--zenoh-mode",
+                                      "client", "--connect", endpoint]),
+                            stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
+
+
+@contextlib.contextmanager
+def _delay_proxy(port: int, delay_ms: float) -> Iterator[int]:
+    """``cdpr delay-proxy`` in front of the router at ``port`` (its own process, under SCHED_FIFO where
+    permitted: the link's delay is the link's, not the machine's load): the port it listens on."""
+    listen = free_port()
+    proxy = subprocess.Popen(realtime([*CDPR, "delay-proxy", "--listen", f"127.0.0.1:{listen}", "--to",
+                                       f"127.0.0.1:{port}", "--delay-ms", str(delay_ms)]),
+                             stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
+    try:
+        deadline = time.monotonic() + 60
+        while True:
+            assert proxy.poll() is None, proxy.communicate()[1][-2000:]
+            with contextlib.suppress(OSError), socket.create_connection(("127.0.0.1", listen), timeout=1):
+                break
+            assert time.monotonic() < deadline, "cdpr delay-proxy did not listen"
+            time.sleep(0.05)
+        yield listen
+    finally:
+        _kill(proxy)
+
+
+def _ping(session_id: str, endpoint: str, count: int) -> dict[str, Any]:
+    """``cdpr ping`` of the session's sim through ``endpoint`` (under SCHED_FIFO where permitted): its JSON."""
+    run = subprocess.run(realtime([*CDPR, "ping", "--session", session_id, "--connect", endpoint, "--count",
+                                   str(count), "--wait", "60"]), capture_output=True, text=True, timeout=120,
+                         check=False)
+    assert run.returncode == 0, run.stderr[-3000:]
+    return last_json_line(run.stdout)
 
 
 def _finish(*procs: subprocess.Popen[str] | None, timeout: float = 120.0) -> None:
@@ -131,22 +166,19 @@ def _free_run_through_the_link(session_id: str, tmp_path: Path) -> tuple[dict[st
     the clock's log, the median round trip through the link (s)."""
     port = free_port()
     endpoint = f"tcp/127.0.0.1:{port}"
-    with DelayProxy(("127.0.0.1", 0), ("127.0.0.1", port), 0.001) as proxy, SleeperProbe() as probe:
+    with _delay_proxy(port, 1.0) as proxy, SleeperProbe() as probe:
         up = _up("caroca_15kg", session_id, endpoint, "--duration", "5", "--mode", "realtime", "--sync", "free")
         ctrl = None
         try:
-            with zenoh.open(zenoh_config("client", connect=[f"tcp/127.0.0.1:{proxy.port}"])) as z:
-                _wait(lambda: any(r.ok for r in z.get(Keys(session_id).topic("ping", "sim"), timeout=1.0)), 60,
-                      "the sim")
-                trips = ping(z, Keys(session_id), "sim", count=50, info_timeout=10.0).round_trips
-            ctrl = _remote_controller(session_id, f"tcp/127.0.0.1:{proxy.port}")
+            trip = _ping(session_id, f"tcp/127.0.0.1:{proxy}", 50)["round_trip_p50_ms"] / 1000.0
+            ctrl = _remote_controller(session_id, f"tcp/127.0.0.1:{proxy}")
             out, err = up.communicate(timeout=120)
             _finish(ctrl)
         finally:
             _kill(up, ctrl)
     summary = last_json_line(out)
     summary["probe_on_time_fraction"] = probe.on_time_fraction
-    return summary, err, statistics.median(trips)
+    return summary, err, trip
 
 
 def test_free_running_through_a_1ms_link_keeps_the_wall_clock(session_id: str, tmp_path: Path) -> None:
@@ -172,7 +204,7 @@ def test_free_running_through_a_1ms_link_keeps_the_wall_clock(session_id: str, t
         endpoint = f"tcp/127.0.0.1:{port}"
         path = _scenario(tmp_path, f"latency_{d}", sim__command_latency={"steps": d, "seed": 1})
         up = _up(path, f"{session_id}d{d}", endpoint, "--duration", "5")
-        ctrl = _remote_controller(f"{session_id}d{d}", endpoint)
+        ctrl = _remote_controller(f"{session_id}d{d}", endpoint, rt=False)
         out, err = _outcome(up, ctrl, 300)
         det = last_json_line(out)
         assert det["exit_ok"] is True, err[-3000:]
@@ -223,9 +255,9 @@ def test_lock_step_realtime_starts_every_step_at_its_deadline_never_before(sessi
 def test_lock_step_realtime_through_a_1ms_link_says_why_within_a_second(session_id: str) -> None:
     port = free_port()
     endpoint = f"tcp/127.0.0.1:{port}"
-    with DelayProxy(("127.0.0.1", 0), ("127.0.0.1", port), 0.001) as proxy:
+    with _delay_proxy(port, 1.0) as proxy:
         up = _up("caroca_15kg", session_id, endpoint, "--duration", "2", "--mode", "realtime")
-        ctrl = _remote_controller(session_id, f"tcp/127.0.0.1:{proxy.port}")
+        ctrl = _remote_controller(session_id, f"tcp/127.0.0.1:{proxy}")
         out, err = _outcome(up, ctrl, 120)
     lines = [ln for ln in err.splitlines() if "falling behind" in ln]
     assert len(lines) == 1, err[-3000:]  # once
@@ -242,10 +274,10 @@ def test_lock_step_realtime_through_a_1ms_link_says_why_within_a_second(session_
 def test_max_lateness_aborts_a_session_that_falls_behind(session_id: str) -> None:
     port = free_port()
     endpoint = f"tcp/127.0.0.1:{port}"
-    with DelayProxy(("127.0.0.1", 0), ("127.0.0.1", port), 0.001) as proxy:
+    with _delay_proxy(port, 1.0) as proxy:
         up = _up("caroca_15kg", session_id, endpoint, "--duration", "5", "--mode", "realtime",
                  "--max-lateness", "0.2")
-        ctrl = _remote_controller(session_id, f"tcp/127.0.0.1:{proxy.port}")
+        ctrl = _remote_controller(session_id, f"tcp/127.0.0.1:{proxy}")
         _, err = _outcome(up, ctrl, 120)
     assert up.returncode == 1
     assert re.search(r"aborted: step \d+ is 0\.\d+ s behind the wall clock \(--max-lateness 0.2 s\)", err), err[-3000:]
@@ -381,9 +413,10 @@ def test_cdpr_ping_measures_the_link_and_says_whether_it_fits(session_id: str) -
     endpoint = f"tcp/127.0.0.1:{port}"
     up = _up("caroca_15kg", session_id, endpoint, "--duration", "60")
     try:
-        with DelayProxy(("127.0.0.1", 0), ("127.0.0.1", port), 0.002) as proxy:
-            run = subprocess.run([*CDPR, "ping", "--session", session_id, "--connect", f"tcp/127.0.0.1:{proxy.port}",
-                                  "--count", "30"], capture_output=True, text=True, timeout=120, check=False)
+        with _delay_proxy(port, 2.0) as proxy:
+            run = subprocess.run(realtime([*CDPR, "ping", "--session", session_id, "--connect",
+                                           f"tcp/127.0.0.1:{proxy}", "--count", "30"]),
+                                 capture_output=True, text=True, timeout=120, check=False)
     finally:
         up.send_signal(signal.SIGINT)
         _finish(up)
@@ -449,8 +482,9 @@ def test_command_age_and_watchdog_reach_the_rrd_the_mcap_and_the_report(tmp_path
 def test_a_modelled_latency_adds_to_a_free_running_link(tmp_path: Path, session_id: str) -> None:
     path = _scenario(tmp_path, "latency_free", controller__kp=400.0, controller__kd=40.0,
                      sim__command_latency={"steps": 5, "seed": 1})
-    run = subprocess.run([*CDPR, "run", str(path), "--mode", "realtime", "--sync", "free", "--quiet", "--duration",
-                          "1", "--session", session_id], capture_output=True, text=True, timeout=300, check=False)
+    run = subprocess.run(realtime([*CDPR, "run", str(path), "--mode", "realtime", "--sync", "free", "--quiet",
+                                   "--duration", "1", "--session", session_id]),
+                         capture_output=True, text=True, timeout=300, check=False)
     assert run.returncode == 0, run.stderr[-3000:]
     s = last_json_line(run.stdout)
     assert s["command_age_p50"] >= 5  # the model's 5 steps, plus whatever the loopback adds
@@ -481,7 +515,7 @@ def test_a_slow_sdk_controller_answers_the_newest_state_in_free_running_mode(tmp
     port = free_port()
     endpoint = f"tcp/127.0.0.1:{port}"
     up = _up("caroca_15kg", session_id, endpoint, "--duration", "1.5", "--mode", "realtime", "--sync", "free")
-    ctrl = subprocess.Popen([sys.executable, str(script), "--connect", endpoint, "--session", session_id],
+    ctrl = subprocess.Popen(realtime([sys.executable, str(script), "--connect", endpoint, "--session", session_id]),
                             stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
     out, err = _outcome(up, ctrl, 120)
     s = last_json_line(out)

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import ast
 import queue
+import shutil
 import signal
 import subprocess
 import sys
@@ -28,7 +29,7 @@ from cdpr.runtime.client import (
     controller,
 )
 from cdpr.runtime.transport import StopFlag, zenoh_config
-from conftest import CDPR, free_port, last_json_line
+from conftest import CDPR, free_port, last_json_line, realtime
 from test_compose import Processes
 
 ROOT = Path(__file__).resolve().parent.parent
@@ -293,15 +294,18 @@ def test_plain_example_imports_nothing_from_cdpr() -> None:
 
 def _up_with(example: str, session_id: str, duration: str | None, tmp_path: Path, *extra: str,
              scenario: str = "caroca_15kg") -> tuple[dict[str, Any], str]:
-    """`cdpr up SCENARIO --without controller` with ``examples/EXAMPLE`` as its controller: (summary, its log)."""
+    """`cdpr up SCENARIO --without controller` with ``examples/EXAMPLE`` as its controller: (summary, its log). A
+    realtime session (``--mode realtime`` in ``extra``) and its controller run under SCHED_FIFO where that is
+    permitted (conftest.realtime): their wall-clock figures are then theirs, not the machine's load's."""
     endpoint = f"tcp/127.0.0.1:{free_port()}"
+    rt = realtime if "realtime" in extra else list
     procs = Processes()
     try:
-        up = procs.start("up", [*CDPR, "up", scenario, *(["--duration", duration] if duration else []), "--session",
-                                session_id, "--without", "controller", "--listen", endpoint, "--quiet",
-                                "--join-timeout", "60", *extra], tmp_path, tmp_path / "up.log")
-        procs.start("remote", [sys.executable, str(EXAMPLES / example), "--connect", endpoint,
-                               "--session", session_id], tmp_path, tmp_path / "remote.log")
+        up = procs.start("up", rt([*CDPR, "up", scenario, *(["--duration", duration] if duration else []),
+                                   "--session", session_id, "--without", "controller", "--listen", endpoint,
+                                   "--quiet", "--join-timeout", "60", *extra]), tmp_path, tmp_path / "up.log")
+        procs.start("remote", rt([sys.executable, str(EXAMPLES / example), "--connect", endpoint,
+                                  "--session", session_id]), tmp_path, tmp_path / "remote.log")
         codes = procs.wait(["up", "remote"], timeout=300)
         assert codes == {"up": 0, "remote": 0}, procs.report()
         assert up.returncode == 0
@@ -469,15 +473,38 @@ def test_the_readme_commands_on_the_default_port(session_id: str, tmp_path: Path
     assert s["steps"] == 1000
 
 
+WHEELHOUSE = Path(sys.prefix) / "wheelhouse"  # `make .venv`: the base requirements' and the build's wheels
+
+
+def _source_copy(destination: Path) -> Path:
+    """The work tree's files (git's tracked and untracked ones but the ignored: no .venv, build/, runs), copied to
+    ``destination``: setuptools builds in the source tree, and a `pip install .` of the repository would leave a
+    build/ folder in it."""
+    listed = subprocess.run(["git", "-C", str(ROOT), "ls-files", "-z", "--cached", "--others", "--exclude-standard"],
+                            capture_output=True, check=True).stdout.decode().split("\0")
+    for name in filter(None, listed):
+        source = ROOT / name
+        if source.is_file():  # (a tracked file deleted in the work tree is not)
+            (destination / name).parent.mkdir(parents=True, exist_ok=True)
+            shutil.copy2(source, destination / name)
+    return destination
+
+
 @pytest.mark.slow
 def test_a_base_install_runs_the_remote_controller_example(session_id: str, tmp_path: Path) -> None:
     """`pip install .` (no extras) in a fresh venv: no dartpy, rerun-sdk, matplotlib, pydantic or click; the
-    example controller still completes a session started by `cdpr up` (the full install, here)."""
+    example controller still completes a session started by `cdpr up` (the full install, here). Offline: pip
+    takes the base requirements and the build's from the wheelhouse `make .venv` downloads (--no-index); the
+    project's own pip installs into the new venv (--python: no pip of its own to set up), without byte-compiling
+    every module of numpy and scipy (--no-compile: the example compiles what it imports)."""
+    assert (WHEELHOUSE / ".complete").exists(), f"no wheelhouse {WHEELHOUSE}: `make .venv` downloads it"
     venv = tmp_path / "base-venv"
-    subprocess.run([sys.executable, "-m", "venv", str(venv)], check=True, timeout=120)
+    subprocess.run([sys.executable, "-m", "venv", "--without-pip", str(venv)], check=True, timeout=120)
     python = venv / "bin" / "python"
-    install = subprocess.run([str(python), "-m", "pip", "install", "--quiet", "--disable-pip-version-check",
-                              str(ROOT)], capture_output=True, text=True, timeout=900, check=False)
+    install = subprocess.run([sys.executable, "-m", "pip", "--python", str(python), "install", "--quiet",
+                              "--disable-pip-version-check", "--no-index", "--find-links", str(WHEELHOUSE),
+                              "--no-compile", str(_source_copy(tmp_path / "source"))],
+                             capture_output=True, text=True, timeout=900, check=False)
     assert install.returncode == 0, install.stderr[-3000:]
     probe = ("import importlib.util as u; print(sorted(m for m in ('dartpy', 'rerun', 'matplotlib', 'pydantic', "
              "'click', 'yaml', 'cdpr_sim', 'cdpr') if u.find_spec(m)))")

@@ -33,7 +33,7 @@ from cdpr.ros2.topics import COMMANDS, PUBLISHED
 from cdpr.runtime.transport import Event
 from cdpr.tools.bench import ros2_controller
 from cdpr_ros2.core import Bridge, RosCommandError
-from conftest import CDPR, COMPOSE, free_port, last_json_line
+from conftest import CDPR, COMPOSE, free_port, last_json_line, realtime
 from test_compose import Processes
 
 HERE = Path(__file__).resolve().parent
@@ -411,6 +411,7 @@ class Session:
         self.statuses: queue.Queue[Status] = queue.Queue()
         self.zenoh: zenoh.Session | None = None
         self.up: subprocess.Popen[bytes] | None = None
+        self.realtime = False
 
     def start(self, scenario: str, duration: float | None = None, *extra: str) -> None:
         args = [*CDPR, "up", scenario, "--without", "controller", "--ros2", "--session", self.sid, "--quiet",
@@ -419,7 +420,9 @@ class Session:
             args += ["--duration", str(duration)]
         self.stdout = (self.tmp / "up.out").open("wb")
         self.stderr = self.tmp / "up.err"
-        self.up = subprocess.Popen(args, stdout=self.stdout, stderr=self.stderr.open("wb"), env=self.env)
+        self.realtime = "realtime" in extra  # its processes and the controllers under SCHED_FIFO (conftest.realtime)
+        self.up = subprocess.Popen(realtime(args) if self.realtime else args, stdout=self.stdout,
+                                   stderr=self.stderr.open("wb"), env=self.env)
         conf = zenoh.Config()
         conf.insert_json5("mode", '"client"')
         conf.insert_json5("connect/endpoints", f'["tcp/127.0.0.1:{self.port}"]')
@@ -429,8 +432,9 @@ class Session:
             s.payload.to_bytes())))
 
     def controller(self, name: str, *args: str) -> subprocess.Popen[bytes]:
-        return self.procs.start(name, [sys.executable, str(CONTROLLER), "--router-port", str(self.port), *args],
-                                self.tmp, self.tmp / f"{name}.log", env=self.env)
+        argv = [sys.executable, str(CONTROLLER), "--router-port", str(self.port), *args]
+        return self.procs.start(name, realtime(argv) if self.realtime else argv, self.tmp, self.tmp / f"{name}.log",
+                                env=self.env)
 
     def _check_controllers(self) -> None:
         for name, p in self.procs.procs.items():

@@ -30,8 +30,9 @@ from cdpr_controller.core import ControllerCore
 from cdpr_sim.core import PlatformSim, PlatformState, StepReport, state_message
 from cdpr_sim.models import make_sim
 from cdpr_sim.ups import LINK_MASS, UpsSim
-from cdpr_trajectory.core import setpoint_at
+from cdpr_trajectory.core import setpoints_between
 from conftest import cdpr, last_json_line
+from test_loop import caroca_15kg_for_half_a_second
 from test_sim_core import (
     caroca_full_inertia,
     moving_state,
@@ -341,6 +342,9 @@ def closed_loop(
     """Run the 15 kg scenario's controller on ``sim``; positions at every step, and closure/IK checks."""
     scenario = load_scenario("caroca_15kg")
     controller = ControllerCore.from_scenario(scenario)
+    # setpoint_at of every step, bit for bit: the trajectory node's blocks of 100 (tests/test_trajectory.py)
+    setpoints = [sp for k in range(0, steps, 100)
+                 for sp in setpoints_between(scenario.trajectory, k, min(k + 99, steps - 1), scenario.dt)]
     positions = np.empty((steps + 1, 3))
     gaps: list[float] = []
     for k in range(steps):
@@ -352,7 +356,7 @@ def closed_loop(
             gaps.append(
                 max(float(sim.closure_errors().max()), float(np.abs(s.cable_lengths - ik.lengths).max()))
             )
-        result = controller.step(state_message(s, 0), setpoint_at(scenario.trajectory, k, scenario.dt))
+        result = controller.step(state_message(s, 0), setpoints[k])
         sim.step(np.asarray(result.tensions))
     positions[steps] = sim.state().position
     return positions, gaps
@@ -376,7 +380,9 @@ def test_ups_and_ideal_cables_agree_on_the_15kg_scenario() -> None:
 
 
 @pytest.mark.slow
-def test_the_services_run_the_ups_scenario(session_id: str) -> None:
+def test_the_services_run_the_ups_scenario(
+    session_id: str, tmp_path_factory: pytest.TempPathFactory
+) -> None:
     proc = cdpr(
         "run",
         "caroca_15kg_ups",
@@ -395,10 +401,6 @@ def test_the_services_run_the_ups_scenario(session_id: str) -> None:
     assert s["final_position_error"] < 1e-3
     assert s["max_position_error"] < 1e-3
     assert s["clamped_commands"] == 0
-    ideal = last_json_line(
-        cdpr(
-            "run", "caroca_15kg", "--duration", "0.5", "--session", f"{session_id}i", "--quiet", check=True
-        ).stdout
-    )
+    ideal = caroca_15kg_for_half_a_second(tmp_path_factory)  # `cdpr run caroca_15kg --duration 0.5`, shared
     assert s["state_digest"] != ideal["state_digest"]  # another physics ran …
     assert abs(s["final_position_error"] - ideal["final_position_error"]) < 1e-6  # … to the same effect
