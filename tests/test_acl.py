@@ -41,7 +41,7 @@ from test_compose import (
 )
 
 ROOT = Path(__file__).resolve().parent.parent
-USERS = ("clock", "sim", "trajectory", "recorder", "controller", "observer")
+USERS = ("clock", "sim", "trajectory", "controller", "recorder", "ros2", "observer", "ros2-controller")
 WAIT = 20.0  # bound on any single expected delivery (never a measurement)
 SETTLE = 0.5  # seconds given to a put that must NOT arrive before the control put that must
 

@@ -52,6 +52,7 @@ class NodeWiring:
     subscribes: tuple[str, ...]
     publishes: tuple[str, ...]
     optional: tuple[str, ...] = ()  # of subscribes: left out by a node that does not use them (nothing sent to it)
+    alive_as: tuple[str, ...] = ()  # other roles whose liveliness token it may hold (it acts as them)
 
 
 # What the serve loop wires for every node, whatever the table says below.
@@ -67,15 +68,18 @@ WIRING: dict[str, NodeWiring] = {
     "controller": NodeWiring(subscribes=("state", "setpoints", "camera"), publishes=("command", "end"),
                              optional=("camera",)),
     "recorder": NodeWiring(subscribes=("telemetry", "setpoints", "camera", "camera_image"), publishes=()),
-    # the session on ROS 2's wire (rmw_zenoh); "command" only while a ROS 2 controller is there (docs/ros2.md)
-    "ros2": NodeWiring(subscribes=("tick", "state", "setpoints", "sensors"), publishes=("command",)),
+    # the session on ROS 2's wire (rmw_zenoh); "command", and the controller's token, only while a ROS 2
+    # controller is there (docs/ros2.md)
+    "ros2": NodeWiring(subscribes=("tick", "state", "setpoints", "sensors"), publishes=("command",),
+                       alive_as=("controller",)),
 }
 
 
 def wiring_of(node: str) -> NodeWiring:
     """The table's row for ``node``, the wiring every node has added."""
     row = WIRING.get(node, NodeWiring((), ()))
-    return NodeWiring(row.subscribes + EVERY_NODE.subscribes, row.publishes + EVERY_NODE.publishes)
+    return NodeWiring(row.subscribes + EVERY_NODE.subscribes, row.publishes + EVERY_NODE.publishes,
+                      alive_as=row.alive_as)
 
 
 def publishers(topic: str) -> tuple[str, ...]:

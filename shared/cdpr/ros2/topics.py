@@ -7,6 +7,7 @@ names, types, QoS, frames and stamps either way. Pure, no I/O.
 from __future__ import annotations
 
 import json
+import re
 from collections.abc import Container, Mapping, Sequence
 from dataclasses import dataclass
 from typing import Any
@@ -47,6 +48,21 @@ COMMANDS: dict[str, RosTopic] = {
     "tension_commands": RosTopic("tension_commands", "std_msgs/msg/Float64MultiArray"),
 }
 STEP_TOPICS = ("clock", "joint_states", "pose", "twist", "tf", "setpoint_pose", "setpoint_twist", "setpoint_accel")
+
+
+NAMESPACE = "/cdpr"  # the topics' namespace of the session "default"
+_TOKEN = re.compile(r"[A-Za-z][A-Za-z0-9_]*")
+
+
+def default_namespace(session: str) -> str:
+    """The topics' namespace of ``session``: ``/cdpr`` for ``default``, ``/cdpr/<session>`` for any other, so that
+    the sessions of one router (and their controllers' identities: docs/security.md) never share a command topic.
+    ValueError when the session id is not a ROS 2 name (letters, digits, ``_``, a letter first)."""
+    if session == "default":
+        return NAMESPACE
+    if not _TOKEN.fullmatch(session) or "__" in session:
+        raise ValueError(f"session {session!r} is not a ROS 2 name (letters, digits and single _, a letter first)")
+    return f"{NAMESPACE}/{session}"
 
 
 def cable_names(m: int) -> tuple[str, ...]:

@@ -1,4 +1,5 @@
-"""``cdpr run|up|sim|trajectory|controller|clock|recorder|router|ping|delay-proxy|soak``: sessions and their nodes."""
+"""``cdpr run|up|sim|trajectory|controller|clock|recorder|router|acl|ping|delay-proxy|soak``: sessions and their
+nodes."""
 
 from __future__ import annotations
 
@@ -292,6 +293,33 @@ def router(listen: tuple[str, ...], connect: tuple[str, ...], zenoh_config: str 
         while not stop:
             time.sleep(0.1)
     log("router", "stopped")
+
+
+@cli.command()
+@click.option("--sessions", default="", metavar="S1,S2",
+              help="sessions that get identities of their own: controller.S and ros2-controller.S may command "
+                   "session S only")
+@click.option("-o", "--output", type=click.Path(dir_okay=False), default=None,
+              help="write the config here (default: stdout)")
+@click.option("--identities", "list_identities", is_flag=True,
+              help="print the identities' user names instead, one per line (make certs makes one file each)")
+def acl(sessions: str, output: str | None, list_identities: bool) -> None:
+    """The secure profile's router config: TLS, passwords, and the access-control list derived from the topic
+    tables (docs/security.md; docker/zenoh/router-secure.json5 is its output without --sessions)."""
+    from pathlib import Path
+
+    from cdpr.tools import acl as access
+
+    names = [s for s in sessions.split(",") if s]
+    if list_identities:
+        click.echo("\n".join(access.identities(names)))
+        return
+    where = "secrets/router-secure.json5" if names else "zenoh/router-secure.json5"
+    text = access.render(names, where=str(output or where) if names else where)
+    if output is None:
+        click.echo(text, nl=False)
+    else:
+        Path(output).write_text(text, encoding="utf-8")
 
 
 @cli.command()
