@@ -85,7 +85,10 @@ def test_the_ros2_node_runs_in_the_sim_s_process_unless_the_sim_is_elsewhere() -
     sc = load_scenario("caroca_15kg")
     argv = node_argv(sc, RunOptions(ros2=True, without=("controller",)), "tcp/127.0.0.1:7447")
     assert set(argv) == {"clock", "trajectory", "sim+ros2"}
-    assert argv["sim+ros2"][-2:] == ["--ros-namespace", "/cdpr"]  # the controller's role: no --observe
+    assert "--observe" not in argv["sim+ros2"]  # the controller's role
+    assert "--ros-namespace" not in argv["sim+ros2"]  # the node's own default, from the session id
+    named = node_argv(sc, RunOptions(ros2=True, without=("controller",), ros_namespace="/lab"), "tcp/127.0.0.1:7447")
+    assert named["sim+ros2"][-2:] == ["--ros-namespace", "/lab"]
     assert node_argv(sc, RunOptions(ros2=True), "tcp/127.0.0.1:7447")["sim+ros2"][-1] == "--observe"
     alone = node_argv(sc, RunOptions(ros2=True, without=("controller", "sim")), "tcp/127.0.0.1:7447")
     assert set(alone) == {"clock", "trajectory", "ros2"}

@@ -19,6 +19,7 @@ from pathlib import Path
 
 import pytest
 
+from cdpr.ros2.topics import default_namespace
 from cdpr.tools.bench import ros2_controller
 from conftest import CDPR, ROOT, free_port, last_json_line
 from test_compose import Processes
@@ -59,7 +60,8 @@ def run_session(kind: str, session: str, tmp: Path, env: dict[str, str]) -> dict
         controller = [sys.executable, str(EXAMPLES / "plain_zenoh_controller.py"), "--connect", endpoint,
                       "--session", session]
     else:
-        controller = [sys.executable, ros2_controller.__file__, "--router-port", str(port)]
+        controller = [sys.executable, ros2_controller.__file__, "--router-port", str(port), "--namespace",
+                      default_namespace(session)]
         controller += ["--unstamped"] if "unstamped" in kind else []
         controller += ["--slow-start", "1.5"] if "slow-start" in kind else []
     procs = Processes()

@@ -29,7 +29,7 @@ from cdpr.protocol import Command, Keys, Setpoint, Setpoints, State, Status
 from cdpr.ros2 import graph
 from cdpr.ros2 import messages as ros
 from cdpr.ros2.cdr import CdrError, stamp
-from cdpr.ros2.topics import COMMANDS, PUBLISHED
+from cdpr.ros2.topics import COMMANDS, PUBLISHED, default_namespace
 from cdpr.runtime.transport import Event
 from cdpr.tools.bench import ros2_controller
 from cdpr_ros2.core import Bridge, RosCommandError
@@ -406,6 +406,7 @@ class Session:
 
     def __init__(self, tmp: Path, env: dict[str, str], session_id: str) -> None:
         self.tmp, self.env, self.sid = tmp, env, session_id
+        self.ns = default_namespace(session_id)  # the session's topics: /cdpr/<session>
         self.port = free_port()
         self.procs = Processes()
         self.statuses: queue.Queue[Status] = queue.Queue()
@@ -432,7 +433,7 @@ class Session:
             s.payload.to_bytes())))
 
     def controller(self, name: str, *args: str) -> subprocess.Popen[bytes]:
-        argv = [sys.executable, str(CONTROLLER), "--router-port", str(self.port), *args]
+        argv = [sys.executable, str(CONTROLLER), "--router-port", str(self.port), "--namespace", self.ns, *args]
         return self.procs.start(name, realtime(argv) if self.realtime else argv, self.tmp, self.tmp / f"{name}.log",
                                 env=self.env)
 
@@ -540,8 +541,9 @@ def test_every_topic_on_the_wire_is_what_rosbags_reads(ros2_session: Session) ->
     assert s["exit_ok"], s
     time.sleep(0.5)  # deliveries still on their way to this session's callbacks (all sent: the session ended)
     del keep
-    types = {graph.qualify("/cdpr", t.name): t.ros_type for t in PUBLISHED.values()}
-    commands = {graph.qualify("/cdpr", t.name) for t in COMMANDS.values()}
+    ns = ros2_session.ns
+    types = {graph.qualify(ns, t.name): t.ros_type for t in PUBLISHED.values()}
+    commands = {graph.qualify(ns, t.name) for t in COMMANDS.values()}
     by_topic: dict[str, list[tuple[object, tuple[int, int, bytes]]]] = {}
     for key, payload, att in samples:
         domain, *topic, dds, type_hash = key.split("/")
@@ -554,7 +556,7 @@ def test_every_topic_on_the_wire_is_what_rosbags_reads(ros2_session: Session) ->
         assert len(att) == 33, key
         by_topic.setdefault(name, []).append((STORE.deserialize_cdr(payload, ros_type), graph.parse_attachment(att)))
     # session_info is latched, published once as the node starts: before or after this test subscribed
-    assert set(by_topic) - {"/cdpr/session_info"} == set(types) - {"/cdpr/session_info"}
+    assert set(by_topic) - {f"{ns}/session_info"} == set(types) - {f"{ns}/session_info"}
     for name, got in by_topic.items():
         seqs = [a[0] for _, a in got]
         assert seqs == list(range(seqs[0], seqs[0] + len(seqs))), name  # every one, in order
@@ -565,27 +567,27 @@ def test_every_topic_on_the_wire_is_what_rosbags_reads(ros2_session: Session) ->
     assert set(clocks) == ts  # /clock is the state's t, every step
     distinct = [c for i, c in enumerate(clocks) if i == 0 or c != clocks[i - 1]]
     assert distinct == sorted(ts)  # never going back (a step the clock asked again is stamped the same)
-    for name in ("/cdpr/joint_states", "/cdpr/platform/pose", "/cdpr/platform/twist", "/cdpr/setpoint/pose",
-                 "/cdpr/imu", "/cdpr/sensors/joint_states", "/tf"):
+    for name in (*(f"{ns}/{t}" for t in ("joint_states", "platform/pose", "platform/twist", "setpoint/pose", "imu",
+                                          "sensors/joint_states")), "/tf"):
         stamps = [(h.stamp.sec, h.stamp.nanosec) for h in (
             (m.transforms[0].header if name == "/tf" else m.header) for m, _ in by_topic[name])]
         assert all(a < b for a, b in itertools.pairwise(stamps) if a != b), name
         assert set(stamps) <= ts | {stamp(st.t + 0.001) for st in states}, name
     state_by_stamp = {stamp(st.t): st for st in states}
-    for m, _ in by_topic["/cdpr/joint_states"]:
+    for m, _ in by_topic[f"{ns}/joint_states"]:
         st = state_by_stamp[(m.header.stamp.sec, m.header.stamp.nanosec)]
         assert m.position.tolist() == list(st.cable_lengths)
         assert m.effort.tolist() == list(st.tensions)
-    for m, _ in by_topic["/cdpr/platform/pose"]:
+    for m, _ in by_topic[f"{ns}/platform/pose"]:
         st = state_by_stamp[(m.header.stamp.sec, m.header.stamp.nanosec)]
         p, q = m.pose.position, m.pose.orientation
         assert (p.x, p.y, p.z, q.x, q.y, q.z, q.w) == st.pose
         assert m.header.frame_id == "world"
-    imu = by_topic["/cdpr/imu"][0][0]
+    imu = by_topic[f"{ns}/imu"][0][0]
     assert imu.header.frame_id == "platform"
     assert imu.orientation_covariance[0] == -1.0  # no orientation estimate
     assert 9.0 < imu.linear_acceleration.z < 10.6  # specific force at rest, platform frame
-    info = [r.ok for r in z.get("0/cdpr/session_info/**/@adv/pub/**?_anyke", timeout=5.0) if r.ok is not None]
+    info = [r.ok for r in z.get(f"0{ns}/session_info/**/@adv/pub/**?_anyke", timeout=5.0) if r.ok is not None]
     if info:  # the session has ended: its node (and cache) may be gone already
         text = STORE.deserialize_cdr(info[0].payload.to_bytes(), "std_msgs/msg/String").data
         assert '"cables": ["cable_1"' in text
@@ -603,20 +605,22 @@ def test_the_graph_the_wait_the_pause_and_bad_commands(ros2_session: Session) ->
     ros2_session.start("caroca_15kg", 3.0)
     z = ros2_session.zenoh
     assert z is not None
-    expected = {f"MP/%/%cdpr/cdpr/{graph.mangle(graph.qualify('/cdpr', t.name))}/{graph.dds_type(t.ros_type)}/"
+    ns = ros2_session.ns  # /cdpr/<session>: mangled %cdpr%<session>
+    node = f"%/{graph.mangle(ns)}/cdpr"
+    expected = {f"MP/{node}/{graph.mangle(graph.qualify(ns, t.name))}/{graph.dds_type(t.ros_type)}/"
                 f"{graph.TYPE_HASHES[t.ros_type]}" for t in PUBLISHED.values()}
-    expected |= {f"MS/%/%cdpr/cdpr/{graph.mangle(graph.qualify('/cdpr', t.name))}/{graph.dds_type(t.ros_type)}/"
+    expected |= {f"MS/{node}/{graph.mangle(graph.qualify(ns, t.name))}/{graph.dds_type(t.ros_type)}/"
                  f"{graph.TYPE_HASHES[t.ros_type]}" for t in COMMANDS.values()}
     deadline = time.monotonic() + WAIT
     while time.monotonic() < deadline:
         tokens = _tokens(z)
         ends = {"/".join(k.split("/")[5:12]) for k in tokens}
-        if expected <= ends and any(k.endswith("/NN/%/%cdpr/cdpr") for k in tokens):
+        if expected <= ends and any(k.endswith(f"/NN/{node}") for k in tokens):
             break
         time.sleep(0.1)
     else:
         raise AssertionError(f"the ros2 node's tokens are not all there: {sorted(expected - ends)}")
-    assert "%cdpr%setpoint%accel" in " ".join(tokens)
+    assert f"{graph.mangle(ns)}%setpoint%accel" in " ".join(tokens)
     assert "/%tf/" in " ".join(tokens)
     status = ros2_session.wait_status(lambda s: s.state == "waiting" and "controller" in s.missing,
                                       "the session waiting for its controller")
@@ -636,7 +640,7 @@ def test_the_graph_the_wait_the_pause_and_bad_commands(ros2_session: Session) ->
     }
     for topic, payloads in bad.items():
         ros_type = COMMANDS[topic].ros_type
-        pub = z.declare_publisher(graph.data_key(0, f"/cdpr/{topic}", ros_type))
+        pub = z.declare_publisher(graph.data_key(0, f"{ns}/{topic}", ros_type))
         for i, payload in enumerate(payloads):
             pub.put(payload, attachment=graph.attachment(i + 1, time.time_ns(), b"\x01" * 16))
         pub.undeclare()
@@ -650,7 +654,7 @@ def test_the_graph_the_wait_the_pause_and_bad_commands(ros2_session: Session) ->
     assert ros2.get("unmatched_ros2_commands", 0) >= 1, s["faults"]
     assert set(ros2) <= {"bad_ros2_commands", "unmatched_ros2_commands"}, s["faults"]
     log = ros2_session.stderr.read_text()
-    assert "[ros2] dropped a bad /cdpr/tension_commands message: Float64MultiArray.data: 9 values, expected 8" in log
+    assert f"[ros2] dropped a bad {ns}/tension_commands message: Float64MultiArray.data: 9 values, expected 8" in log
     assert "[ros2] the ROS 2 controller left: the session waits for it" in log
 
 
@@ -694,8 +698,8 @@ def test_the_compose_ros2_profile_runs_a_session_with_a_ros2_controller(sdk_env:
         for name in names:
             c = containers[name]
             procs.start(name, c.argv, c.cwd, c.log)
-        procs.start("controller", [sys.executable, str(CONTROLLER), "--router-port", str(port)], tmp_path,
-                    tmp_path / "controller.log", env=sdk_env)
+        procs.start("controller", [sys.executable, str(CONTROLLER), "--router-port", str(port), "--namespace",
+                                   default_namespace(session_id)], tmp_path, tmp_path / "controller.log", env=sdk_env)
         codes = procs.wait(SESSION_SERVICES, timeout=180)
         assert codes == dict.fromkeys(SESSION_SERVICES, 0), procs.report()
         assert procs.wait(["ros2"], timeout=WAIT) == {"ros2": 0}, procs.report()

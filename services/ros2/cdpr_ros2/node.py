@@ -26,7 +26,7 @@ from cdpr.protocol import Keys
 from cdpr.protocol.pairing import Pairing
 from cdpr.ros2.graph import NodeName, data_key, endpoint_token, node_token, parse_token, qualify
 from cdpr.ros2.graph import attachment as make_attachment
-from cdpr.ros2.topics import COMMANDS, PUBLISHED
+from cdpr.ros2.topics import COMMANDS, PUBLISHED, default_namespace
 from cdpr.runtime.service import Node, pair
 from cdpr.runtime.transport import PUBLISH_OPTS, Event, Inbox, log
 from cdpr_ros2.core import Bridge, RosCommandError
@@ -86,8 +86,9 @@ class Ros2Node(Node):
     @classmethod
     def add_arguments(cls, parser: argparse.ArgumentParser) -> None:
         g = parser.add_argument_group("ros2")
-        g.add_argument("--ros-namespace", default="/cdpr", metavar="NS",
-                       help="the namespace of the session's topics (default: %(default)s)")
+        g.add_argument("--ros-namespace", default=None, metavar="NS",
+                       help="the namespace of the session's topics (default: /cdpr for the session default, "
+                            "/cdpr/<session> for another: the sessions of one router never share a topic)")
         g.add_argument("--ros-node-name", default="cdpr", metavar="NAME",
                        help="this node's name in the ROS 2 graph (default: %(default)s)")
         g.add_argument("--observe", action="store_true",
@@ -96,6 +97,11 @@ class Ros2Node(Node):
     @classmethod
     def from_args(cls, scenario: Scenario, keys: Keys, args: argparse.Namespace) -> Ros2Node:
         ns = args.ros_namespace
+        if ns is None:
+            try:
+                ns = default_namespace(keys.session)
+            except ValueError as exc:
+                raise InputError(f"--session: {exc}: give its ROS 2 topics a namespace (--ros-namespace)") from None
         if not ns.startswith("/") or "//" in ns or (len(ns) > 1 and ns.endswith("/")) \
                 or not all(c.isalnum() or c in "_/" for c in ns):
             raise InputError(f"--ros-namespace: {ns!r} is not a ROS 2 namespace (/name/name…: letters, digits, _)")

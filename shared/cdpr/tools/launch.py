@@ -314,7 +314,7 @@ class RunOptions:
     foxglove: int | None = None
     foxglove_host: str = "127.0.0.1"
     ros2: bool = False  # also run the ros2 node (the controller's role when the controller joins from elsewhere)
-    ros_namespace: str = "/cdpr"
+    ros_namespace: str | None = None  # the ros2 node's (None: its default, from the session id)
 
     @property
     def recording(self) -> bool:
@@ -351,7 +351,7 @@ def node_argv(scenario: Scenario, opts: RunOptions, router: str) -> dict[str, li
     argv.update({name: loop for name in ("sim", "trajectory", "controller") if name not in opts.without})
     if opts.ros2:
         observe = [] if "controller" in opts.without else ["--observe"]  # never a second controller
-        ros2 = ["--ros-namespace", opts.ros_namespace, *observe]
+        ros2 = [*(["--ros-namespace", opts.ros_namespace] if opts.ros_namespace else []), *observe]
         if "sim" in argv and not remote:
             # hosted by the sim's process, as gazebo_ros's plugins are by Gazebo's server: a state reaches it
             # and a ROS 2 command the sim within the process (docs/ros2.md), two hops fewer per step (a peer: with

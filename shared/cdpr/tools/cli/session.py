@@ -172,7 +172,9 @@ def _leave(code: int, at_once: bool) -> NoReturn:
 @click.option("--ros2", is_flag=True,
               help="also run the ros2 node (in the sim's process: sim+ros2): the session's topics on ROS 2 "
                    "(rmw_zenoh); with --without controller a ROS 2 node is the controller (docs/ros2.md)")
-@click.option("--ros-namespace", default="/cdpr", show_default=True, help="--ros2: the namespace of the topics")
+@click.option("--ros-namespace", default=None,
+              help="--ros2: the namespace of the topics (default: /cdpr for the session default, /cdpr/<session> for "
+                   "another)")
 @click.option("--episodes", type=click.IntRange(0), default=1, show_default=True, metavar="N",
               help="run the session N times back to back under the same id (0: until interrupted), for a "
                    "participant that joins one after the other: a learning environment in session mode "
