@@ -336,6 +336,7 @@ print(json.dumps({{"env_steps": steps, "truncated": bool(done), "sim_step": info
 def test_a_ros2_controller_on_the_host_through_the_ros2_profile(project: list[Project], tmp_path: Path) -> None:
     """`--profile ros2 up --scale controller=0 ... clock ros2`: the ros2 service in its container, and a ROS 2
     controller on the host (zenoh-ros2-sdk, a peer of the router's mapped port, as rmw_zenoh's nodes are)."""
+    from cdpr.ros2.topics import default_namespace
     from cdpr.tools.bench import ros2_controller
     from cdpr.tools.bench.ros2_messages import make_cache
 
@@ -345,7 +346,8 @@ def test_a_ros2_controller_on_the_host_through_the_ros2_profile(project: list[Pr
     p = Project(tmp_path)
     project.append(p)
     with (tmp_path / "controller.log").open("w") as log:
-        ctl = subprocess.Popen([sys.executable, str(ros2_controller.__file__), "--router-port", str(p.port)],
+        ctl = subprocess.Popen([sys.executable, str(ros2_controller.__file__), "--router-port", str(p.port),
+                                "--namespace", default_namespace(p.session)],
                                stdout=log, stderr=subprocess.STDOUT, env=env)
         try:
             up, _ = p.up_argv(p.argv("--profile", "ros2", "up", "--scale", "controller=0", "--exit-code-from",
