@@ -140,6 +140,18 @@ def run_once(tmp_path_factory: pytest.TempPathFactory, name: str, make: Callable
 
 
 @pytest.fixture(scope="session")
+def half_second_run(tmp_path_factory: pytest.TempPathFactory) -> dict:
+    """The summary of `cdpr run caroca_15kg --duration 0.5`, run once per test session, for the tests that compare a
+    run of their own with it."""
+    def run(directory: Path) -> dict:
+        proc = cdpr("run", "caroca_15kg", "--duration", "0.5", "--session", f"half{uuid.uuid4().hex[:8]}", "--quiet",
+                    check=True)
+        return last_json_line(proc.stdout)
+
+    return run_once(tmp_path_factory, "caroca_15kg-0.5s", run)[0]
+
+
+@pytest.fixture(scope="session")
 def demo_recording(tmp_path_factory: pytest.TempPathFactory) -> tuple[dict, Path]:
     """The demo (`make demo`'s run: the whole 15 kg CAROCA scenario), recorded once per test session: its
     summary and its .rrd (``.with_suffix(".mcap")``: the same session as MCAP)."""

@@ -393,7 +393,7 @@ def test_secure_override_uses_tls_and_one_identity_per_service() -> None:
     plain = load_compose([COMPOSE], {})
     services = load_compose([COMPOSE, SECURE], {})
     assert command_of(services["router"]) == ["router", "--zenoh-config", "zenoh/router-secure.json5"]
-    for name in (*SESSION_SERVICES, "controller"):
+    for name in (*SESSION_SERVICES, "controller", "ros2"):
         cmd = command_of(services[name])
         assert cmd[cmd.index("--connect") + 1] == "tls/router:7447"
         i = cmd.index("--zenoh-config")

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import contextlib
+import io
 import os
 import re
 import signal
@@ -9,18 +11,25 @@ import socket
 import subprocess
 import threading
 import time
+import uuid
+from collections.abc import Callable
 from pathlib import Path
 
 import pytest
 import zenoh
 
 from cdpr import recording
+from cdpr.config.scenario import load_scenario
 from cdpr.protocol import Keys
 from cdpr.runtime.transport import zenoh_config
+from cdpr.tools.launch import RunOptions, run_session
+from cdpr.tools.report import read_recording, summarize
 from cdpr.tools.soak import SessionWatcher
 from conftest import CDPR, free_port, last_json_line, processes_mentioning, wait_no_processes
 
 pytestmark = pytest.mark.slow
+
+Uninterrupted = Callable[[str, float], dict]  # (scenario, duration) -> the summary of an uninterrupted run
 
 
 class Watcher(SessionWatcher):
@@ -29,6 +38,32 @@ class Watcher(SessionWatcher):
         while not predicate():
             assert time.monotonic() < deadline, f"timed out waiting for {what}; last status {self.status}"
             time.sleep(0.01)
+
+
+@pytest.fixture(scope="module")
+def uninterrupted() -> Uninterrupted:
+    """The summary of an uninterrupted in-process run of a scenario for a duration (what `cdpr run SCENARIO
+    --duration D --in-process` prints), run once per module, in this process, for the tests that compare an
+    interrupted session with it."""
+    runs: dict[tuple[str, float], dict] = {}
+
+    def summary(scenario: str, duration: float) -> dict:
+        if (scenario, duration) not in runs:
+            handlers = {sig: signal.getsignal(sig) for sig in (signal.SIGINT, signal.SIGTERM)}
+            out = io.StringIO()
+            try:
+                with contextlib.redirect_stdout(out):
+                    code = run_session(load_scenario(scenario, {"duration": duration}),
+                                       RunOptions(session_id=f"whole{uuid.uuid4().hex[:8]}", quiet=True,
+                                                  in_process=True))
+            finally:  # (the session takes SIGINT and SIGTERM while it runs: pytest's own again)
+                for sig, handler in handlers.items():
+                    signal.signal(sig, handler)
+            assert code == 0, out.getvalue()[-3000:]
+            runs[scenario, duration] = last_json_line(out.getvalue())
+        return runs[scenario, duration]
+
+    return summary
 
 
 def _controller(session_id: str, endpoint: str, duration: str) -> subprocess.Popen[str]:
@@ -82,7 +117,8 @@ def test_controller_killed_and_replaced_mid_run(session_id: str) -> None:
 def _restart(session_id: str, service: str, scenario: str, restart: str, duration: str,
              *extra: str) -> tuple[dict, str, Watcher]:
     """A session whose ``service`` (its own process) is killed after 300 steps and replaced by ``cdpr service
-    restart``: the summary, the clock's and the replacement's logs, and every state seen."""
+    restart``: the summary, the clock's and the replacement's logs, and every state seen. (A session of 1 s
+    leaves 700 steps, over a second of it, for the kill to land mid-run: the resume does not depend on more.)"""
     port = free_port()
     endpoint = f"tcp/127.0.0.1:{port}"
     keys = Keys(session_id)
@@ -112,25 +148,23 @@ def _restart(session_id: str, service: str, scenario: str, restart: str, duratio
 
 @pytest.mark.parametrize("scenario", ["caroca_15kg", "caroca_15kg_winch", "caroca_15kg_sag", "caroca_15kg_ups"])
 def test_a_restarted_sim_goes_on_from_the_last_snapshot_bit_for_bit(session_id: str, scenario: str,
-                                                                     tmp_path: Path) -> None:
+                                                                     tmp_path: Path,
+                                                                     uninterrupted: Uninterrupted) -> None:
     """Killed mid-run and started again: the new sim takes up the session's last snapshot (the clock keeps the
     one of each telemetry block), the clock grants the steps after it again, the session finishes every step,
     and the states are those of an uninterrupted run, bit for bit (a state published again equals the first);
-    the recording has every step once, and the same digest."""
+    the recording has every step once, and the same digest (the summary `cdpr report` writes, read here without
+    its plots: the command itself is tests/test_recording.py's)."""
     rrd = tmp_path / "restart.rrd"
-    s, err, watch = _restart(session_id, "sim", scenario, scenario, "1.5", "--rrd", str(rrd))
+    s, err, watch = _restart(session_id, "sim", scenario, scenario, "1.0", "--rrd", str(rrd))
     assert s["exit_ok"] is True, err[-3000:]
     assert "joined a session under way: going on from step" in err
-    lost, doubled = watch.check(1500)
+    lost, doubled = watch.check(1000)
     assert lost == [], lost[:5]
     assert doubled == [], doubled[:5]  # a state published again (after the restart) equals the first copy
-    whole = subprocess.run([*CDPR, "run", scenario, "--duration", "1.5", "--in-process", "--quiet"],
-                           capture_output=True, text=True, timeout=300, check=True)
-    assert s["state_digest"] == last_json_line(whole.stdout)["state_digest"]
-    report = subprocess.run([*CDPR, "report", str(rrd), "-o", str(tmp_path / "report")], capture_output=True,
-                            text=True, timeout=300, check=True)
-    summary = last_json_line(report.stdout)["summary"]
-    assert summary["recorded_states"] == 1501
+    assert s["state_digest"] == uninterrupted(scenario, 1.0)["state_digest"]
+    summary = summarize(read_recording(rrd))
+    assert summary["recorded_states"] == 1001
     assert summary["state_digest"] == s["state_digest"]
 
 
@@ -144,15 +178,13 @@ def test_a_sim_that_cannot_take_up_the_snapshot_ends_the_session(session_id: str
     assert re.search(r"aborted: the sim restarted: its state went back from step \d+ to step 0", err), err[-3000:]
 
 
-def test_a_restarted_trajectory_changes_nothing(session_id: str) -> None:
+def test_a_restarted_trajectory_changes_nothing(session_id: str, uninterrupted: Uninterrupted) -> None:
     """The trajectory is stateless: killed mid-run and started again, it publishes the setpoints again from the
     pending step (the clock's repeated grant), and the states are those of an uninterrupted run."""
-    s, err, watch = _restart(session_id, "trajectory", "caroca_15kg", "caroca_15kg", "1.5")
+    s, err, watch = _restart(session_id, "trajectory", "caroca_15kg", "caroca_15kg", "1.0")
     assert s["exit_ok"] is True, err[-3000:]
-    assert watch.check(1500) == ([], [])
-    whole = subprocess.run([*CDPR, "run", "caroca_15kg", "--duration", "1.5", "--in-process", "--quiet"],
-                           capture_output=True, text=True, timeout=300, check=True)
-    assert s["state_digest"] == last_json_line(whole.stdout)["state_digest"]
+    assert watch.check(1000) == ([], [])
+    assert s["state_digest"] == uninterrupted("caroca_15kg", 1.0)["state_digest"]
 
 
 @pytest.mark.parametrize("service", ["controller", "sim"])
@@ -249,12 +281,10 @@ def test_sigterm_to_one_service_stops_the_whole_run(session_id: str, service: st
     assert verify.returncode == 0, verify.stderr + "\nthe run's log:\n" + "".join(progress)
 
 
-def test_start_order_does_not_change_the_states(session_id: str) -> None:
-    """Services started one by one in reverse order give the bit-identical state stream of `cdpr run`."""
-    reference = last_json_line(
-        subprocess.run([*CDPR, "run", "caroca_15kg", "--duration", "0.5", "--session", f"{session_id}r", "--quiet"],
-                       capture_output=True, text=True, timeout=120, check=True).stdout
-    )
+def test_start_order_does_not_change_the_states(session_id: str, half_second_run: dict) -> None:
+    """Services started one by one in reverse order give the bit-identical state stream of `cdpr run` (the test
+    session's shared `cdpr run caroca_15kg --duration 0.5`)."""
+    reference = half_second_run
     port = free_port()
     endpoint = f"tcp/127.0.0.1:{port}"
     up = subprocess.Popen(

@@ -11,7 +11,6 @@ import subprocess
 import sys
 import threading
 import time
-import uuid
 from pathlib import Path
 from typing import Any
 
@@ -23,7 +22,7 @@ from cdpr import recording
 from cdpr.protocol import PROTOCOL_VERSION, Command, Keys, Status
 from cdpr.runtime.transport import zenoh_config
 from cdpr.tools.bench import rt_priority_allowed
-from conftest import CDPR, cdpr, free_port, last_json_line, processes_mentioning, run_once, wait_no_processes
+from conftest import CDPR, cdpr, free_port, last_json_line, processes_mentioning, wait_no_processes
 
 pytestmark = pytest.mark.slow
 
@@ -44,23 +43,12 @@ def test_full_15kg_run_tracks_the_trajectory(demo_recording: tuple[dict, Path]) 
     assert s["rtf"] > 0
 
 
-def caroca_15kg_for_half_a_second(tmp_path_factory: pytest.TempPathFactory) -> dict:
-    """The summary of `cdpr run caroca_15kg --duration 0.5`, run once per test session (run_once: whichever module
-    asks first), for the tests that compare a run of their own with it (here and tests/test_ups.py)."""
-    def run(directory: Path) -> dict:
-        proc = cdpr("run", "caroca_15kg", "--duration", "0.5", "--session", f"half{uuid.uuid4().hex[:8]}", "--quiet",
-                    check=True)
-        return last_json_line(proc.stdout)
-
-    return run_once(tmp_path_factory, "caroca_15kg-0.5s", run)[0]
-
-
-def test_fast_runs_are_bit_identical(session_id: str, tmp_path_factory: pytest.TempPathFactory) -> None:
+def test_fast_runs_are_bit_identical(session_id: str, half_second_run: dict) -> None:
     """Two runs of caroca_15kg, the session's shared one and one of this test's own, started apart."""
     digests = []
     for i in range(2):
         if i == 0:
-            s = caroca_15kg_for_half_a_second(tmp_path_factory)
+            s = half_second_run
         else:
             proc = cdpr("run", "caroca_15kg", "--duration", "0.5", "--session", f"{session_id}{i}", "--quiet",
                         check=True)

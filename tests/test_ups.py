@@ -32,7 +32,6 @@ from cdpr_sim.models import make_sim
 from cdpr_sim.ups import LINK_MASS, UpsSim
 from cdpr_trajectory.core import setpoints_between
 from conftest import cdpr, last_json_line
-from test_loop import caroca_15kg_for_half_a_second
 from test_sim_core import (
     caroca_full_inertia,
     moving_state,
@@ -380,9 +379,7 @@ def test_ups_and_ideal_cables_agree_on_the_15kg_scenario() -> None:
 
 
 @pytest.mark.slow
-def test_the_services_run_the_ups_scenario(
-    session_id: str, tmp_path_factory: pytest.TempPathFactory
-) -> None:
+def test_the_services_run_the_ups_scenario(session_id: str, half_second_run: dict) -> None:
     proc = cdpr(
         "run",
         "caroca_15kg_ups",
@@ -401,6 +398,6 @@ def test_the_services_run_the_ups_scenario(
     assert s["final_position_error"] < 1e-3
     assert s["max_position_error"] < 1e-3
     assert s["clamped_commands"] == 0
-    ideal = caroca_15kg_for_half_a_second(tmp_path_factory)  # `cdpr run caroca_15kg --duration 0.5`, shared
+    ideal = half_second_run  # `cdpr run caroca_15kg --duration 0.5`, shared
     assert s["state_digest"] != ideal["state_digest"]  # another physics ran …
     assert abs(s["final_position_error"] - ideal["final_position_error"]) < 1e-6  # … to the same effect
