@@ -592,8 +592,28 @@ def _final_image_error(rrd: Path) -> tuple[int, float]:
     return last, float(np.sqrt(np.mean(np.sum(error * error, axis=1))))
 
 
+def test_an_ibvs_answer_is_the_same_when_its_state_comes_again_after_later_frames() -> None:
+    """A sim that went on from a snapshot (after a restart) asks again for states the controller has answered,
+    with newer frames already in: each answer is computed from the frame its own state came with, so it is the
+    first answer again, bit for bit (the session's states then are an uninterrupted run's)."""
+    from cdpr_controller.ibvs import ibvs_from_scenario
+    from cdpr_sim.cameras import CameraSuite
+
+    sc = load_scenario("caroca_15kg_ibvs")
+    core, suite = ibvs_from_scenario(sc), CameraSuite(tuple(sc.cameras), seed=3)
+    first = {}
+    for k in range(400):
+        s = sc.trajectory.sample(k * sc.dt)  # a moving platform: every frame says something new
+        for frame in suite.step(k, k * sc.dt, s.position, s.rotation):
+            core.on_frame(frame)
+        first[k] = core.step(k).tensions
+    assert core.frame_step > 300
+    for k in range(250, 400):  # the states since the snapshot at 250, again
+        np.testing.assert_array_equal(core.step(k).tensions, first[k])
+
+
 @pytest.mark.slow
-def test_ibvs_brings_the_platform_to_the_desired_image(tmp_path: Path) -> None:
+def test_ibvs_brings_the_platform_to_the_desired_image(tmp_path: Path, ibvs_in_process: tuple[dict, str]) -> None:
     """caroca_15kg_ibvs, multi-process and in-process: the same states (digest), the markers' image at B to
     within 1 px at the end (read back from the multi-process recording: what the camera saw; the in-process run,
     whose states are those, is held to it by its controller's own last-frame figure, with no recording: the
@@ -607,20 +627,20 @@ def test_ibvs_brings_the_platform_to_the_desired_image(tmp_path: Path) -> None:
     summaries = {}
     for mode in ("multi_process", "in_process"):
         rrd = tmp_path / f"{mode}.rrd"
-        run = subprocess.run([*CDPR, "run", "caroca_15kg_ibvs", "--quiet",
-                              *(["--in-process"] if mode == "in_process" else ["--rrd", str(rrd)])],
-                             capture_output=True, text=True, timeout=600)
-        assert run.returncode == 0, run.stderr[-3000:]
-        summaries[mode] = last_json_line(run.stdout)
         if mode == "multi_process":
+            run = subprocess.run([*CDPR, "run", "caroca_15kg_ibvs", "--quiet", "--rrd", str(rrd)],
+                                 capture_output=True, text=True, timeout=600)
+            assert run.returncode == 0, run.stderr[-3000:]
+            summaries[mode], stderr = last_json_line(run.stdout), run.stderr
             last, error = _final_image_error(rrd)
-        else:
-            told = re.search(r"IBVS: the last frame \(step (\d+)\) ([0-9.]+) px RMS from the desired image", run.stderr)
-            assert told, run.stderr[-3000:]
+        else:  # the test session's shared in-process run (conftest.ibvs_in_process)
+            summaries[mode], stderr = ibvs_in_process
+            told = re.search(r"IBVS: the last frame \(step (\d+)\) ([0-9.]+) px RMS from the desired image", stderr)
+            assert told, stderr[-3000:]
             last, error = int(told[1]), float(told[2])
         assert last == 11980
         assert error <= 1.0, error  # ~0.03 px: the law's exponential after the speed limit
-        assert "IBVS: the last frame (step 11980)" in run.stderr
+        assert "IBVS: the last frame (step 11980)" in stderr
     a, b = summaries["multi_process"], summaries["in_process"]
     assert a["state_digest"] == b["state_digest"]
     assert a["exit_ok"]

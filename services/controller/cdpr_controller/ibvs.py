@@ -13,12 +13,15 @@ trajectory's last pose). Every camera frame, :meth:`IbvsCore.on_frame`:
 
 Every step, :meth:`IbvsCore.step` servoes the platform's twist to it: ``a = kv ((v*, ω*) − (v̂, ω̂))``, the
 wrench of eq. 7 for that acceleration at the estimated pose (gravity included), and the scenario's tension
-distribution at that pose (predicted from the last frame's pose and twist). Before the first frame the
+distribution at that pose (predicted from the pose and twist of the frame that step's state came with:
+:func:`frame_needed`, whichever frames came since, so that a state the session asks for again — a sim that
+went on from a snapshot after a restart — gets the answer it got the first time). Before the first frame the
 platform is held where the scenario starts it. Nothing of the state's pose or twist is used.
 """
 
 from __future__ import annotations
 
+from collections import OrderedDict
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -64,6 +67,8 @@ class IbvsCore:
     frame_step: int = -1  # the exposure of the last frame used
     feature_error: float = float("nan")  # RMS pixel error of the last frame (markers seen)
     _W: WrenchMatrix = field(init=False, repr=False)
+    # each frame's estimates (position, rotation, twist, IBVS twist) by exposure, the newest HISTORY of them
+    _estimates: OrderedDict[int, tuple[Array, Array, Array, Array]] = field(default_factory=OrderedDict, repr=False)
 
     def __post_init__(self) -> None:
         if self.camera.on_platform or not self.camera.markers_on_platform:
@@ -71,6 +76,7 @@ class IbvsCore:
                              "on the platform (eye-to-hand)")
         self._W = WrenchMatrix(self.robot)
         self._index = {name: i for i, name in enumerate(self.camera.marker_ids)}
+        self._start = (self.position, self.rotation, self.twist, self.target)
 
     def on_frame(self, frame: CameraFrame) -> None:
         """A camera frame: the pose and twist estimates, and the IBVS twist. A frame with fewer than three
@@ -96,15 +102,25 @@ class IbvsCore:
         self.target = target * scale
         err = (xy - self.desired[idx]) * np.array([k.fx, k.fy])
         self.feature_error = float(np.sqrt(np.mean(np.sum(err * err, axis=1))))
+        self._estimates[frame.step] = (self.position, self.rotation, self.twist, self.target)
+        while len(self._estimates) > HISTORY:
+            self._estimates.popitem(last=False)
 
     def step(self, step: int) -> TdaResult:
         """Step ``step``'s tensions: the twist servoed to the IBVS twist through eq. 7 at the estimated pose,
-        carried forward from the last frame at the estimated twist."""
-        ahead = (step - self.frame_step) * self.dt if self.frame_step >= 0 else 0.0
-        p = self.position + self.twist[:3] * ahead
-        R = rotvec_to_matrix(self.twist[3:] * ahead) @ self.rotation
-        wrench = required_wrench(self.robot, R, self.twist, self.kv * (self.target - self.twist))
+        carried forward from the newest frame out by that step (its state's) at the estimated twist."""
+        needed = frame_needed(self.camera, step)
+        # the exposures come in order: the newest (the one in a session that never goes back) is looked at first
+        frame = next((s for s in reversed(self._estimates) if needed is not None and s <= needed), -1)
+        p0, R0, twist, target = self._estimates[frame] if frame >= 0 else self._start  # none yet: the start, held
+        ahead = (step - frame) * self.dt if frame >= 0 else 0.0
+        p = p0 + twist[:3] * ahead
+        R = rotvec_to_matrix(twist[3:] * ahead) @ R0
+        wrench = required_wrench(self.robot, R, twist, self.kv * (target - twist))
         return self.tda.solve(self._W(p, R), wrench, self.robot.tmin, self.robot.tmax)
+
+
+HISTORY = 1024  # frames' estimates kept for states asked for again (a sim going on from a snapshot: 50 steps back)
 
 
 def ibvs_from_scenario(scenario: Any) -> IbvsCore:
