@@ -152,6 +152,19 @@ def half_second_run(tmp_path_factory: pytest.TempPathFactory) -> dict:
 
 
 @pytest.fixture(scope="session")
+def ibvs_in_process(tmp_path_factory: pytest.TempPathFactory) -> tuple[dict, str]:
+    """`cdpr run caroca_15kg_ibvs --in-process` (the whole IBVS session: 12 000 steps), run once per test session:
+    its summary and its log (stderr), for the tests that compare a session of their own with it."""
+    def run(directory: Path) -> dict:
+        proc = cdpr("run", "caroca_15kg_ibvs", "--in-process", "--quiet", "--session", f"ibvs{uuid.uuid4().hex[:8]}",
+                    timeout=600, check=True)
+        return {"summary": last_json_line(proc.stdout), "stderr": proc.stderr}
+
+    value = run_once(tmp_path_factory, "ibvs-in-process", run)[0]
+    return value["summary"], value["stderr"]
+
+
+@pytest.fixture(scope="session")
 def demo_recording(tmp_path_factory: pytest.TempPathFactory) -> tuple[dict, Path]:
     """The demo (`make demo`'s run: the whole 15 kg CAROCA scenario), recorded once per test session: its
     summary and its .rrd (``.with_suffix(".mcap")``: the same session as MCAP)."""

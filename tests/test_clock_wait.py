@@ -61,7 +61,10 @@ def test_join_timeout_aborts_naming_the_missing_participant(session_id: str) -> 
     assert lines[0][0] in ("sim, trajectory", "sim"), err
     if len(lines) == 2:
         assert lines[1] in (("sim", 7), ("sim", 8)), err
-    reason = f"sim did not join session '{session_id}' within 7.5 s (joined: trajectory)"
+    # the token it did not see, and that the router's access rules may deny it (docs/security.md)
+    reason = (f"sim did not join session '{session_id}' within 7.5 s (joined: trajectory; nothing came on "
+              f"cdpr/{session_id}/alive/sim; if the router enforces access rules (the secure profile), they may deny "
+              "it: `cdpr router --log-denials` logs each denial (docs/security.md))")
     assert err.strip().splitlines()[-1] == f"[clock] aborted: {reason}", err
     assert 7.5 < elapsed < 7.5 + 15, elapsed  # start-up, the timeout, at most LINGER s for the trajectory
     # The participant that came learns why the session ended, and stops.

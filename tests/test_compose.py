@@ -195,12 +195,13 @@ class Processes:
         return "\n".join(f"--- {n} (exit {p.poll()})\n{self.log(n)[-2500:]}" for n, p in self.procs.items())
 
 
-def compose_dir_with_secrets(scratch: Path) -> Path:
-    """A stand-in for docker/ with fresh secrets from `make certs` and the repository's zenoh/ configs."""
+def compose_dir_with_secrets(scratch: Path, *make_args: str) -> Path:
+    """A stand-in for docker/ with fresh secrets from `make certs` (``make_args``: e.g. SESSIONS=a,b) and the
+    repository's zenoh/ configs."""
     d = scratch / "compose"
     d.mkdir()
     (d / "zenoh").symlink_to(DOCKER / "zenoh")
-    proc = subprocess.run(["make", "-s", "-C", str(ROOT), "certs", f"CERTS_DIR={d / 'secrets'}"],
+    proc = subprocess.run(["make", "-s", "-C", str(ROOT), "certs", f"CERTS_DIR={d / 'secrets'}", *make_args],
                           capture_output=True, text=True, timeout=60)
     assert proc.returncode == 0, proc.stderr
     return d

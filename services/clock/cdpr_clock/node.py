@@ -21,13 +21,16 @@ from cdpr.errors import InputError
 from cdpr.protocol import SERVICES, ClockState, Keys, Resume, Status, Telemetry, Tick
 from cdpr.protocol.session import encode_session_info
 from cdpr.runtime.service import Node
-from cdpr.runtime.transport import Event, Inbox, log
+from cdpr.runtime.transport import Event, Inbox, log, may_be_denied
 from cdpr_clock.core import ClockCore
 
 LINGER = 2.0  # seconds the clock keeps announcing "finished" while participants leave
 HANDSHAKE_FIRST_REPEAT = 0.05  # s: tick 0 is repeated after this, then twice as long each time (core docstring)
 WAIT_LOG_FIRST, WAIT_LOG_EVERY = 2.0, 5.0  # "waiting for ..." lines before the start: the first, then every
 PACE_CHECK_PERIOD = 0.25  # s between two looks at the share of late ticks of the last second (realtime)
+# the topics every lock-step step needs, in the order they go: the grant, the state and the setpoint, the command,
+# the sim's report (docs/protocol.md, "One step")
+LOOP_TOPICS = ("tick", "state", "setpoints", "command", "telemetry")
 REJOIN_TIMEOUT = 60.0  # s a participant that left a session under way may take to come back (--rejoin-timeout)
 
 
@@ -58,6 +61,7 @@ class ClockNode(Node):
         self.ages = free or sim.command_latency is not None  # the states carry command ages to count
         self.max_lateness = max_lateness  # s: abort when a tick (a step, free-running) is later (0: never)
         self.last_pace_check = 0.0
+        self.stalls = 0  # grants repeated after a stall
         self.diagnosed = False  # the one-line diagnosis of a realtime session falling behind (given once)
         self.lags: list[float] = []  # the sim's wait for each command (telemetry), since the last check_pace()
         self.expected = tuple(expected)
@@ -258,8 +262,14 @@ class ClockNode(Node):
         ):
             pending = self.core.pending()
             if pending is not None:
+                # the first time, the streams a step needs: one that never arrives is what a router's access
+                # rules would make of a key its sender may not publish (docs/security.md)
+                needed = "" if self.stalls else (
+                    f" (a step needs {', '.join(self.keys.topic(t) for t in LOOP_TOPICS)}: "
+                    f"{may_be_denied('one of them')})")
+                self.stalls += 1
                 self.warn("stall", f"no progress for {self.resend_after:g} s at step {self.core.reached}; "
-                          f"repeating the grant of steps {pending[0]}-{pending[1]}")
+                          f"repeating the grant of steps {pending[0]}-{pending[1]}{needed}")
                 self.send_tick(pending[0], pending[1], now, resend=True)
             self.core.last_progress = now
         if self.core.realtime and now - self.last_pace_check >= PACE_CHECK_PERIOD:
@@ -360,7 +370,8 @@ class ClockNode(Node):
         if self.join_timeout > 0 and waited > self.join_timeout:
             joined = [s for s in self.expected if s in self.present]
             self.abort(f"{', '.join(self.missing)} did not join session {self.keys.session!r} within "
-                       f"{self.join_timeout:g} s (joined: {', '.join(joined) or 'none'})", now)
+                       f"{self.join_timeout:g} s (joined: {', '.join(joined) or 'none'}; "
+                       f"{may_be_denied(self.keys.alive(self.missing[0]))})", now)
         elif now >= self._next_wait_log:
             self._next_wait_log += WAIT_LOG_EVERY  # on a grid from the start (2, 7, 12 … s), however late this one
             log(self.name, f"waiting for {', '.join(self.missing)} to join session {self.keys.session!r} "

@@ -19,7 +19,7 @@ from cdpr.mechanics.tda import TdaResult
 from cdpr.protocol import Command, Keys, Setpoint, State
 from cdpr.protocol.pairing import Pairing
 from cdpr.runtime.service import Node, pair
-from cdpr.runtime.transport import Event, Inbox, log
+from cdpr.runtime.transport import Event, Inbox, log, may_be_denied
 from cdpr_controller.core import ControllerCore
 from cdpr_controller.ibvs import frame_needed, ibvs_from_scenario
 
@@ -85,7 +85,8 @@ class ControllerNode(Node):
             self.waiting = state
             if lost and state.step < self.total_steps:
                 self.count("camera_frames_missing")
-                self.warn("frames", f"step {state.step}: the frame it needs has not come; answered without it")
+                self.warn("frames", f"step {state.step}: the frame it needs has not come; answered without it ("
+                          f"{may_be_denied(self.keys.topic('camera', self.ibvs.camera.name))})")
                 self.frames_given_up = frame_needed(self.ibvs.camera, state.step) or 0  # not waited for again
                 self.answer_ibvs(state)
                 return

@@ -47,7 +47,7 @@ from cdpr.protocol import CameraFrame, Command, Keys, Setpoint, State, Status
 from cdpr.protocol.pairing import Pairing
 from cdpr.protocol.session import SessionInfo
 from cdpr.runtime.service import Node, pair, serve
-from cdpr.runtime.transport import Event, Inbox, RateLimitedLog, StopFlag, log, zenoh_config
+from cdpr.runtime.transport import Event, Inbox, RateLimitedLog, StopFlag, log, may_be_denied, zenoh_config
 
 INFO_RETRY = 0.5  # seconds between two `get`s of session/info while no clock answers
 
@@ -71,7 +71,8 @@ def fetch_info(session: zenoh.Session, keys: Keys, stop: StopFlag | None = None,
         if deadline is not None and time.monotonic() >= deadline:
             return None
         if not waited:
-            log(who, f"waiting for session {keys.session!r} to answer {keys.info}")
+            log(who, f"waiting for session {keys.session!r} to answer {keys.info} (if it runs: "
+                f"{may_be_denied(keys.info)})")
             waited = True
         time.sleep(INFO_RETRY)
     return None

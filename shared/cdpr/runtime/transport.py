@@ -38,6 +38,17 @@ PUBLISH_OPTS: dict[str, Any] = {
 
 CONNECT_TIMEOUT = 30.0  # seconds a client keeps trying to reach its endpoints before giving up
 
+# Where Zenoh's access control logs each message a router's rules drop ("<zid> on …+Username(observer)+… is
+# unauthorized to Put (ingress) on <key>"): `cdpr router --log-denials`, or this as RUST_LOG.
+DENIALS_LOG = "zenoh::net::routing::interceptor::access_control=trace"
+
+
+def may_be_denied(key: str) -> str:
+    """The end of a diagnosis that names a stream that did not come: the secure profile's access rules may have
+    dropped it (docs/security.md), and how to see it."""
+    return (f"nothing came on {key}; if the router enforces access rules (the secure profile), they may deny "
+            "it: `cdpr router --log-denials` logs each denial (docs/security.md)")
+
 
 def zenoh_config(
     mode: str = "peer",

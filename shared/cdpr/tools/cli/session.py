@@ -14,6 +14,7 @@ import click
 import numpy as np
 
 from cdpr.errors import InputError
+from cdpr.protocol.wiring import WIRING
 from cdpr.runtime.options import REALTIME_OPTIONS, RECORDER_OPTIONS, SESSION_OPTIONS
 from cdpr.tools.cli.group import cli, click_options, emit
 
@@ -214,8 +215,8 @@ def _episode_path(path: str, episode: int) -> str:
 @click.option("--connect", multiple=True, help="the session's router (default tcp/127.0.0.1:7447)")
 @click.option("--zenoh-config", type=click.Path(), default=None,
               help="Zenoh JSON5 config file (or $ZENOH_CONFIG): TLS, user/password")
-@click.option("--node", default="sim", show_default=True,
-              type=click.Choice(["sim", "clock", "trajectory", "controller", "recorder"]))
+@click.option("--node", default="sim", show_default=True, type=click.Choice(list(WIRING)),
+              help="any node of the wiring table: each answers ping/<node>")
 @click.option("--count", type=click.IntRange(1, 100_000), default=200, show_default=True)
 @click.option("--wait", type=click.FloatRange(0.0), default=10.0, show_default=True,
               help="seconds to wait for NODE to be there (its liveliness token) before the first ping")
@@ -276,13 +277,23 @@ def delay_proxy(listen: str, to: str, delay_ms: float) -> None:
               help="another router to join, e.g. a session's (router-to-router link)")
 @click.option("--zenoh-config", type=click.Path(), default=None,
               help="Zenoh JSON5 config file (or $ZENOH_CONFIG): TLS, user/password, access control")
-def router(listen: tuple[str, ...], connect: tuple[str, ...], zenoh_config: str | None) -> None:
-    """Run a standalone Zenoh router that sessions' services connect to, until SIGINT/SIGTERM."""
+@click.option("--log-denials", is_flag=True,
+              help="log each message its access rules drop (which identity, what, on which key) on stderr")
+def router(listen: tuple[str, ...], connect: tuple[str, ...], zenoh_config: str | None, log_denials: bool) -> None:
+    """Run a standalone Zenoh router that sessions' services connect to, until SIGINT/SIGTERM. Zenoh's own log
+    follows $RUST_LOG."""
     import os
     import time
 
-    from cdpr.runtime.transport import StopFlag, log, open_session
+    import zenoh
+
+    from cdpr.runtime.transport import DENIALS_LOG, StopFlag, log, open_session
     from cdpr.runtime.transport import zenoh_config as make_config
+
+    if log_denials:
+        zenoh.init_log_from_env_or(DENIALS_LOG)
+    else:
+        zenoh.try_init_log_from_env()
 
     config_file = zenoh_config or os.environ.get("ZENOH_CONFIG")
     if not listen and not config_file:
