@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import contextlib
 import functools
+import io
 import json
 import os
 import shutil
@@ -38,6 +39,53 @@ def cdpr(*args: str, timeout: float = 120.0, check: bool = False) -> subprocess.
     if check and proc.returncode != 0:
         raise AssertionError(f"cdpr {' '.join(args)} exited {proc.returncode}\n{proc.stderr[-3000:]}")
     return proc
+
+
+def cdpr_here(*args: str) -> subprocess.CompletedProcess[str]:
+    """`cdpr ARGS` in this process (cdpr.tools.cli.main: its output, one-line errors and exit codes): for the checks
+    of what a command prints and its exit code, where a module also runs the command as a real process."""
+    from cdpr.tools.cli import main
+
+    out, err = io.StringIO(), io.StringIO()
+    with contextlib.redirect_stdout(out), contextlib.redirect_stderr(err):
+        try:
+            main(list(args))
+            code = 0
+        except SystemExit as exc:
+            code = 0 if exc.code is None else exc.code if isinstance(exc.code, int) else 1
+    return subprocess.CompletedProcess(["cdpr", *args], code, out.getvalue(), err.getvalue())
+
+
+ONE_PROCESS = """
+import contextlib, io, json, sys, traceback
+from cdpr.tools.cli import main
+results = []
+for argv in json.loads(sys.argv[1]):
+    out, err = io.StringIO(), io.StringIO()
+    with contextlib.redirect_stdout(out), contextlib.redirect_stderr(err):
+        try:
+            main(argv)
+            code = 0
+        except SystemExit as exc:
+            code = 0 if exc.code is None else exc.code if isinstance(exc.code, int) else 1
+        except Exception:
+            traceback.print_exc()
+            code = 1
+    results.append([code, out.getvalue(), err.getvalue()])
+with open(sys.argv[2], "w") as f:
+    json.dump(results, f)
+"""
+
+
+def cdpr_in_one_process(argvs: list[list[str]], result: Path, timeout: float) -> list[subprocess.CompletedProcess[str]]:
+    """`cdpr ARGV` for each ARGV one after the other in one Python process, each one as its own `cdpr` command
+    (cdpr.tools.cli.main), the interpreter's start-up shared (importing cdpr, DART and Zenoh: about a CPU-second
+    a command); their exit codes, stdouts and stderrs."""
+    proc = subprocess.run([*CDPR[:1], "-c", ONE_PROCESS, json.dumps(argvs), str(result)], capture_output=True,
+                          text=True, timeout=timeout, check=False)
+    assert proc.returncode == 0, proc.stderr[-3000:]
+    return [subprocess.CompletedProcess(["cdpr", *argv], code, out, err)
+            for argv, (code, out, err) in zip(argvs, json.loads(result.read_text()), strict=True)]
 
 
 def processes_mentioning(text: str) -> list[int]:

@@ -1,11 +1,14 @@
 """`cdpr import caspr` (#32): eight single-rigid-body robots of CASPR's model library, imported from XML files in
 CASPR's format (tests/caspr/: the published models' numbers), against cable lengths and wrench matrices computed
-here from the XML alone; then a short session of each."""
+here from the XML alone; then a short session of each. The eight imports share one process, and so do the
+sessions but one (each `cdpr run --in-process`: the same nodes, messages and states); that one runs as separate
+processes."""
 
 from __future__ import annotations
 
 import json
 import re
+import subprocess
 import xml.etree.ElementTree as ET
 from pathlib import Path
 
@@ -15,7 +18,7 @@ import yaml
 
 from cdpr.config.robot import load_robot
 from cdpr.mechanics.kinematics import inverse_kinematics
-from conftest import cdpr, last_json_line
+from conftest import cdpr, cdpr_here, cdpr_in_one_process, last_json_line
 
 FIXTURES = Path(__file__).parent / "caspr"
 MODELS = sorted(p.name for p in FIXTURES.iterdir() if p.is_dir())
@@ -84,6 +87,24 @@ class Caspr:
         return q + np.array([0.01, -0.02, 0.015, 0.05, -0.04, 0.1])
 
 
+@pytest.fixture(scope="module")
+def imports(tmp_path_factory: pytest.TempPathFactory) -> dict[str, tuple[Path, subprocess.CompletedProcess[str]]]:
+    """Each model imported once by `cdpr import caspr` (as :func:`_import` does; the eight in one process), for the
+    tests that check the import and those that run it: its file and the command's outcome."""
+    folder = tmp_path_factory.mktemp("imported")
+    files = {name: folder / f"{name}.yaml" for name in MODELS}
+    procs = cdpr_in_one_process([["import", "caspr", str(FIXTURES / name), "-o", str(files[name]), *HOME.get(name, [])]
+                                 for name in MODELS], folder / "results.json", timeout=300)
+    return {name: (files[name], proc) for name, proc in zip(MODELS, procs, strict=True)}
+
+
+def _imported(imports: dict[str, tuple[Path, subprocess.CompletedProcess[str]]], name: str) -> tuple[Path, dict]:
+    """As :func:`_import`, from the :func:`imports` fixture."""
+    out, proc = imports[name]
+    assert proc.returncode == 0, proc.stderr
+    return out, json.loads(proc.stdout)
+
+
 def _import(name: str, tmp_path: Path, *extra: str, out_name: str | None = None) -> tuple[Path, dict]:
     out = tmp_path / f"{out_name or name}.yaml"
     proc = cdpr("import", "caspr", str(FIXTURES / name), "-o", str(out), *HOME.get(name, []), *extra, timeout=60)
@@ -92,8 +113,8 @@ def _import(name: str, tmp_path: Path, *extra: str, out_name: str | None = None)
 
 
 @pytest.mark.parametrize("name", MODELS)
-def test_the_import_has_caspr_s_lengths_and_wrench_matrix(name: str, tmp_path: Path) -> None:
-    path, report = _import(name, tmp_path)
+def test_the_import_has_caspr_s_lengths_and_wrench_matrix(name: str, imports: dict) -> None:
+    path, report = _imported(imports, name)
     robot = load_robot(path)
     model = Caspr(name)
     assert robot.m == len(model.a) == report["cables"]
@@ -115,8 +136,8 @@ def test_the_import_has_caspr_s_lengths_and_wrench_matrix(name: str, tmp_path: P
     assert "Assumed (CASPR does not give them)" in robot.source
 
 
-def test_every_cable_set_comes_along_and_either_can_be_chosen(tmp_path: Path) -> None:
-    path, report = _import("caspr_spatial_example", tmp_path)
+def test_every_cable_set_comes_along_and_either_can_be_chosen(tmp_path: Path, imports: dict) -> None:
+    path, report = _imported(imports, "caspr_spatial_example")
     assert report["cable_sets"] == ["basic_7_cables", "alternative_7_cables", "basic_8_cables", "cross_8_cables"]
     data = yaml.safe_load(path.read_text())
     assert data["cable_set"] == "basic_7_cables"
@@ -128,14 +149,13 @@ def test_every_cable_set_comes_along_and_either_can_be_chosen(tmp_path: Path) ->
                                rtol=1e-12)
     chosen, report = _import("caspr_spatial_example", tmp_path, "--cable-set", "basic_8_cables", out_name="eight")
     assert (load_robot(chosen).m, report["cable_set"]) == (8, "basic_8_cables")
-    proc = cdpr("robots", str(path), "--cable-set", "nope", timeout=60)
+    proc = cdpr_here("robots", str(path), "--cable-set", "nope")
     assert proc.returncode == 2
     assert "cable_set: no cable set 'nope' (this robot has: basic_7_cables, alternative_7_cables" in proc.stderr
 
 
-@pytest.mark.parametrize("name", MODELS)
-def test_a_short_session_of_each_imported_robot_finishes(name: str, tmp_path: Path) -> None:
-    path, _ = _import(name, tmp_path)
+def short_session(path: Path, name: str, folder: Path) -> Path:
+    """A 0.6 s scenario of the imported robot at ``path``: a small quintic move along x from its home."""
     robot = load_robot(path)
     step = 0.005 if robot.mode == "spatial" else 0.002  # m along x from home
     scenario = {
@@ -145,9 +165,33 @@ def test_a_short_session_of_each_imported_robot_finishes(name: str, tmp_path: Pa
             {"t": 0.5, "position": (robot.home_position + np.array([step, 0.0, 0.0])).tolist()}]},
         "controller": {"kp": 100.0, "kd": 20.0},
     }
-    file = tmp_path / "scenario.yaml"
+    file = folder / f"{name}_scenario.yaml"
     file.write_text(yaml.safe_dump(scenario))
-    proc = cdpr("run", str(file), timeout=300)
+    return file
+
+
+MULTI_PROCESS = "caspr_spatial_example"  # its session as separate processes (`cdpr run`), the others' in-process
+
+
+@pytest.fixture(scope="module")
+def sessions(imports: dict, tmp_path_factory: pytest.TempPathFactory) -> dict[str, subprocess.CompletedProcess[str]]:
+    """The short session of every imported robot but :data:`MULTI_PROCESS`, each `cdpr run --in-process` (every
+    node in one process, the same nodes and messages), one after the other in one process."""
+    folder = tmp_path_factory.mktemp("sessions")
+    argvs = {name: ["run", str(short_session(path, name, folder)), "--in-process"]
+             for name, (path, proc) in imports.items() if name != MULTI_PROCESS and proc.returncode == 0}
+    procs = cdpr_in_one_process(list(argvs.values()), folder / "results.json", timeout=600)
+    return dict(zip(argvs, procs, strict=True))
+
+
+@pytest.mark.parametrize("name", MODELS)
+def test_a_short_session_of_each_imported_robot_finishes(name: str, imports: dict, sessions: dict,
+                                                         tmp_path: Path) -> None:
+    path, _ = _imported(imports, name)
+    if name == MULTI_PROCESS:
+        proc = cdpr("run", str(short_session(path, name, tmp_path)), timeout=300)
+    else:
+        proc = sessions[name]
     assert proc.returncode == 0, proc.stderr[-3000:]
     summary = last_json_line(proc.stdout)
     assert summary["exit_ok"]
@@ -188,8 +232,10 @@ def test_a_model_it_cannot_import_gives_one_line_and_exit_2(tmp_path: Path, chan
         cables = cables.replace(*change["cables"], 1)
     (tmp_path / "m_bodies.xml").write_text(bodies)
     (tmp_path / "m_cables.xml").write_text(cables)
-    proc = cdpr("import", "caspr", str(tmp_path / "m_bodies.xml"), str(tmp_path / "m_cables.xml"),
-                "-o", str(tmp_path / "out.yaml"), *change.get("arg", []), timeout=60)
+    args = ("import", "caspr", str(tmp_path / "m_bodies.xml"), str(tmp_path / "m_cables.xml"),
+            "-o", str(tmp_path / "out.yaml"), *change.get("arg", []))
+    # the first case as the real command's process (nothing else on its stderr), the others in this process
+    proc = cdpr(*args, timeout=60) if change.get("bodies") == MULTI_LINK else cdpr_here(*args)
     assert proc.returncode == 2, proc.stderr
     lines = proc.stderr.strip().splitlines()
     assert len(lines) == 1, proc.stderr
@@ -221,7 +267,8 @@ def _variant(tmp_path: Path, name: str, bodies: tuple[str, str] | None = None,
 
 def test_a_vertical_planar_model_a_point_mass_and_an_inertia_about_the_joint(tmp_path: Path) -> None:
     """PLANAR_XZ (q = [x, z, θ_y]), T_XYZ with every cable at the COM, and an inertia given about the joint frame
-    (ref="joint": moved to the COM by the parallel-axis theorem), each against numbers computed here."""
+    (ref="joint": moved to the COM by the parallel-axis theorem), each against numbers computed here (the first import
+    as the real command's process, the others in this process)."""
     # PLANAR_XZ: CASPR's planar example turned into the x-z plane (every (x, y, 0) point as (x, 0, y))
     folder = _variant(tmp_path, "planar_xy_example", bodies=("PLANAR_XY", "PLANAR_XZ"))
     text = (folder / "m_cables.xml").read_text()
@@ -251,7 +298,7 @@ def test_a_vertical_planar_model_a_point_mass_and_an_inertia_about_the_joint(tmp
     cables = re.sub(r"(<link>1</link><location>)[^<]*", r"\g<1>0 0 0", (folder / "m_cables.xml").read_text())
     (folder / "m_cables.xml").write_text(cables)
     out = tmp_path / "pm.yaml"
-    proc = cdpr("import", "caspr", str(folder), "-o", str(out), timeout=60)
+    proc = cdpr_here("import", "caspr", str(folder), "-o", str(out))
     assert proc.returncode == 0, proc.stderr
     point = load_robot(out)
     assert point.mode == "point_mass"
@@ -263,7 +310,7 @@ def test_a_vertical_planar_model_a_point_mass_and_an_inertia_about_the_joint(tmp
                                                 text.replace('q_min="-1.0 -1.0 0.0 -3.1416 -3.1416 -3.1416"',
                                                              'q_min="-1 -1 0"').replace(
                                                     'q_max="1.0 1.0 1.0 3.1416 3.1416 3.1416"', 'q_max="1 1 1"')))
-    proc = cdpr("import", "caspr", str(folder), "-o", str(tmp_path / "no.yaml"), timeout=60)
+    proc = cdpr_here("import", "caspr", str(folder), "-o", str(tmp_path / "no.yaml"))
     assert proc.returncode == 2
     assert "joint type 'T_XYZ' with platform points off the centre of mass" in proc.stderr
     # an inertia about the joint frame: IPAnema 2's COM is 0.5 m above its joint frame
@@ -272,7 +319,7 @@ def test_a_vertical_planar_model_a_point_mass_and_an_inertia_about_the_joint(tmp
         "<Iyy>1.0</Iyy>", "<Iyy>6.0</Iyy>")
     (folder / "m_bodies.xml").write_text(text)
     out = tmp_path / "joint.yaml"
-    proc = cdpr("import", "caspr", str(folder), "-o", str(out), timeout=60)
+    proc = cdpr_here("import", "caspr", str(folder), "-o", str(out))
     assert proc.returncode == 0, proc.stderr
     # about the COM: I − m (|c|² 1 − c cᵀ), m = 10 kg, c = (0, 0, 0.5) m
     np.testing.assert_allclose(load_robot(out).inertia, np.diag([5.0 - 2.5, 6.0 - 2.5, 1.0]), rtol=0, atol=1e-12)

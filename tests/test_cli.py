@@ -1,8 +1,11 @@
-"""The `cdpr` command line, run as a real subprocess (JSON on stdout, one-line errors with exit code 2)."""
+"""The `cdpr` command line (JSON on stdout, one-line errors with exit code 2): each command, and the bad arguments
+of each command family, run as a real subprocess; the other checks of what a command prints and its exit code run
+it in this process (the same `cdpr.tools.cli.main`, without a new interpreter's start-up)."""
 
 from __future__ import annotations
 
 import json
+import subprocess
 
 import numpy as np
 import pytest
@@ -10,11 +13,12 @@ import pytest
 from cdpr.config.robot import load_robot, shipped_robots
 from cdpr.mechanics.kinematics import inverse_kinematics
 from cdpr.mechanics.rotation import rotvec_to_matrix
-from conftest import cdpr
+from conftest import cdpr, cdpr_here
 
 
-def _json(*args: str, code: int = 0) -> object:
-    proc = cdpr(*args, timeout=60)
+def _json(*args: str, code: int = 0, here: bool = False) -> object:
+    """The JSON `cdpr ARGS` prints (``here``: run in this process), after checking its exit code."""
+    proc = cdpr_here(*args) if here else cdpr(*args, timeout=60)
     assert proc.returncode == code, proc.stderr
     return json.loads(proc.stdout)
 
@@ -41,7 +45,7 @@ def test_ik_matches_the_library() -> None:
 
 @pytest.mark.parametrize("method", ["qp", "closed-form", "improved-closed-form", "continuity"])
 def test_tda_static_holds_the_platform(method: str) -> None:
-    out = _json("tda", "caroca", "--pose", "0", "0", "1.5", "--static", "--method", method)
+    out = _json("tda", "caroca", "--pose", "0", "0", "1.5", "--static", "--method", method, here=method != "qp")
     robot = load_robot("caroca")
     f = np.array(out["tensions"])
     W = inverse_kinematics(robot, [0, 0, 1.5]).wrench_matrix
@@ -56,9 +60,9 @@ def test_tda_static_holds_the_platform(method: str) -> None:
 
 def test_tda_payload_and_wrench_and_limits() -> None:
     a = _json("tda", "caroca", "--pose", "0", "0", "1.5", "--static", "--payload", "15",
-              "--tmin", "1", "--tmax", "6500")
+              "--tmin", "1", "--tmax", "6500", here=True)
     b = _json("tda", "caroca", "--pose", "0", "0", "1.5", "--wrench", "0", "0", str(165 * 9.81), "0", "0", "0",
-              "--tmin", "1", "--tmax", "6500")
+              "--tmin", "1", "--tmax", "6500", here=True)
     assert np.allclose(a["tensions"], b["tensions"], atol=1e-6)
     assert min(a["tensions"]) >= 1 - 1e-9
     infeasible = _json("tda", "caroca", "--pose", "0", "0", "1.5", "--static", "--tmax", "60", code=3)
@@ -79,10 +83,11 @@ def test_pose_angles_take_either_convention_and_say_which() -> None:
     cases = {"xyz": rotation(0, a) @ rotation(1, b) @ rotation(2, c),
              "rpy": rotation(2, c) @ rotation(1, b) @ rotation(0, a)}
     for angles, R in cases.items():
-        out = _json("ik", "caroca", "--pose", "0.1", "0", "1.5", str(a), str(b), str(c), "--angles", angles)
+        out = _json("ik", "caroca", "--pose", "0.1", "0", "1.5", str(a), str(b), str(c), "--angles", angles, here=True)
         assert np.allclose(out["lengths"], inverse_kinematics(robot, [0.1, 0.0, 1.5], R).lengths, rtol=0, atol=1e-12)
-    default = _json("ik", "caroca", "--pose", "0.1", "0", "1.5", str(a), str(b), str(c))
-    assert default == _json("ik", "caroca", "--pose", "0.1", "0", "1.5", str(a), str(b), str(c), "--angles", "rpy")
+    default = _json("ik", "caroca", "--pose", "0.1", "0", "1.5", str(a), str(b), str(c), here=True)
+    assert default == _json("ik", "caroca", "--pose", "0.1", "0", "1.5", str(a), str(b), str(c), "--angles", "rpy",
+                            here=True)
     tilted = _json("workspace", "caroca", "--step", "1", "--orientation", str(a), str(b), str(c), "--angles", "xyz")
     assert tilted["orientation_xyz"] == [a, b, c]
 
@@ -98,6 +103,11 @@ def test_help_lists_the_pose_and_wrench_and_the_angle_convention(command: str, f
         assert f"  {flag} " in options, (flag, proc.stdout)
     assert "Rz(yaw)·Ry(pitch)·Rx(roll)" in options
     assert "Rx(a)·Ry(b)·Rz(c)" in options
+
+
+# one of each command family as the real command's process: robots/ik/tda, run, and a service's (sim)
+BAD_IN_A_PROCESS = {("tda", "caroca", "--pose", "0", "0", "--static"), ("run", "caroca_15kg", "--duration", "-1"),
+                    ("sim", "caroca_15kg", "--rt-priority", "100")}
 
 
 @pytest.mark.parametrize(
@@ -119,7 +129,7 @@ def test_help_lists_the_pose_and_wrench_and_the_angle_convention(command: str, f
     ],
 )
 def test_bad_arguments_give_one_line_and_exit_2(args: tuple[str, ...], needle: str) -> None:
-    proc = cdpr(*args, timeout=60)
+    proc = cdpr(*args, timeout=60) if args in BAD_IN_A_PROCESS else cdpr_here(*args)
     assert proc.returncode == 2, proc.stderr
     lines = proc.stderr.strip().splitlines()
     assert len(lines) == 1, proc.stderr
@@ -128,7 +138,6 @@ def test_bad_arguments_give_one_line_and_exit_2(args: tuple[str, ...], needle: s
 
 
 def test_python_dash_m_is_the_same_command() -> None:
-    import subprocess
     import sys
 
     proc = subprocess.run([sys.executable, "-m", "cdpr", "--help"], capture_output=True, text=True, check=True)

@@ -4,6 +4,7 @@ the dynamics about the COM. The same robot described about its COM moves the sam
 from __future__ import annotations
 
 import json
+import subprocess
 from pathlib import Path
 
 import numpy as np
@@ -16,7 +17,7 @@ from cdpr.mechanics.kinematics import inverse_kinematics
 from cdpr.mechanics.rotation import quat_to_matrix, rpy_to_matrix
 from cdpr.mechanics.trajectory import PlatformPoint, QuinticWaypoints
 from cdpr.tools.report import read_recording
-from conftest import cdpr
+from conftest import cdpr, cdpr_in_one_process
 
 CUBE = Path(__file__).parent / "robots" / "valid" / "cube_8.yaml"
 C = [0.05, -0.03, 0.04]  # the COM in the offset robot's platform frame
@@ -72,50 +73,69 @@ def _positions(rrd: Path) -> np.ndarray:
     return read_recording(rrd).get(recording.ACTUAL_POSITION).values
 
 
-def test_the_offset_robot_moves_as_the_robot_described_about_its_com(tmp_path: Path) -> None:
-    """Two real sessions: cube_8 (about its COM) and the same robot in an offset frame whose waypoints are the
-    frame's (the COM's minus C, a translation): the recorded COM motions agree to 1e-9 m."""
-    home = np.array(yaml.safe_load(CUBE.read_text())["home"]["position"])
-    goal = home + np.array([0.3, -0.2, 0.1])
-    runs = {}
-    for name, robot, shift in (("com", str(CUBE), 0.0), ("offset", str(offset_robot(tmp_path)), 1.0)):
+HOME = np.array(yaml.safe_load(CUBE.read_text())["home"]["position"])
+GOAL = HOME + np.array([0.3, -0.2, 0.1])
+TURN = [{"t": 0.0, "position": (HOME - np.array(C)).tolist()},
+        {"t": 2.0, "position": (HOME - np.array(C) + np.array([0.2, -0.1, 0.1])).tolist(), "rpy": [0.1, -0.05, 0.3]}]
+
+
+def scenarios(folder: Path) -> dict[str, Path]:
+    """The three sessions' scenarios: cube_8 about its COM ("com"), the same motion of the offset robot given by its
+    frame's waypoints ("offset"), and the offset robot's frame turning through :data:`TURN` ("turn")."""
+    files = {}
+    for name, robot, shift in (("com", str(CUBE), 0.0), ("offset", str(offset_robot(folder)), 1.0)):
         scenario = {
             "name": f"cube_{name}", "robot": robot, "dt": 0.001, "duration": 2.5,
             "trajectory": {"type": "quintic", "waypoints": [
-                {"t": 0.0, "position": (home - shift * np.array(C)).tolist()},
-                {"t": 2.0, "position": (goal - shift * np.array(C)).tolist()}]},
+                {"t": 0.0, "position": (HOME - shift * np.array(C)).tolist()},
+                {"t": 2.0, "position": (GOAL - shift * np.array(C)).tolist()}]},
             "controller": {"kp": 400.0, "kd": 40.0},
         }
-        file = tmp_path / f"{name}.yaml"
-        file.write_text(yaml.safe_dump(scenario))
-        rrd = tmp_path / f"{name}.rrd"
-        proc = cdpr("run", str(file), "--in-process", "--rrd", str(rrd), timeout=300)
+        files[name] = folder / f"{name}.yaml"
+        files[name].write_text(yaml.safe_dump(scenario))
+    scenario = {"name": "cube_offset_turn", "robot": str(offset_robot(folder)), "dt": 0.001, "duration": 2.5,
+                "trajectory": {"type": "quintic", "waypoints": TURN}, "controller": {"kp": 400.0, "kd": 40.0}}
+    files["turn"] = folder / "turn.yaml"
+    files["turn"].write_text(yaml.safe_dump(scenario))
+    return files
+
+
+@pytest.fixture(scope="module")
+def sessions(tmp_path_factory: pytest.TempPathFactory) -> dict[str, tuple[subprocess.CompletedProcess[str], Path]]:
+    """The three real sessions of :func:`scenarios`, each `cdpr run --in-process --rrd` (one after the other in one
+    process): each one's outcome and recording."""
+    folder = tmp_path_factory.mktemp("sessions")
+    files = scenarios(folder)
+    rrds = {name: folder / f"{name}.rrd" for name in files}
+    procs = cdpr_in_one_process([["run", str(files[name]), "--in-process", "--rrd", str(rrds[name])] for name in files],
+                                folder / "results.json", timeout=600)
+    return {name: (proc, rrds[name]) for name, proc in zip(files, procs, strict=True)}
+
+
+def test_the_offset_robot_moves_as_the_robot_described_about_its_com(sessions: dict) -> None:
+    """Two real sessions: cube_8 (about its COM) and the same robot in an offset frame whose waypoints are the
+    frame's (the COM's minus C, a translation): the recorded COM motions agree to 1e-9 m."""
+    runs = {}
+    for name in ("com", "offset"):
+        proc, rrd = sessions[name]
         assert proc.returncode == 0, proc.stderr[-3000:]
         runs[name] = _positions(rrd)
     a, b = runs["com"], runs["offset"]
     assert a.shape == b.shape
     assert a.shape[0] > 2000
     assert np.abs(a - b).max() <= 1e-9
-    assert np.abs(a[-1] - goal).max() < 1e-3  # and it went where it was sent
+    assert np.abs(a[-1] - GOAL).max() < 1e-3  # and it went where it was sent
 
 
-def test_a_turning_offset_platform_s_frame_follows_the_waypoints(tmp_path: Path) -> None:
+def test_a_turning_offset_platform_s_frame_follows_the_waypoints(sessions: dict) -> None:
     """Waypoints of the platform frame with a turn: the session's COM follows p(t) + R(t) c, so the frame's origin,
     recovered from the recorded COM pose as p_com − R c, follows the quintic through the waypoints (to the
     tracking error; the wrong sign or no conversion would be 2|c| or |c| = 7 cm off at the end)."""
-    home = np.array(yaml.safe_load(CUBE.read_text())["home"]["position"]) - np.array(C)
-    waypoints = [{"t": 0.0, "position": home.tolist()},
-                 {"t": 2.0, "position": (home + np.array([0.2, -0.1, 0.1])).tolist(), "rpy": [0.1, -0.05, 0.3]}]
-    scenario = {"name": "cube_offset_turn", "robot": str(offset_robot(tmp_path)), "dt": 0.001, "duration": 2.5,
-                "trajectory": {"type": "quintic", "waypoints": waypoints}, "controller": {"kp": 400.0, "kd": 40.0}}
-    file = tmp_path / "turn.yaml"
-    file.write_text(yaml.safe_dump(scenario))
-    rrd = tmp_path / "turn.rrd"
-    proc = cdpr("run", str(file), "--in-process", "--rrd", str(rrd), timeout=300)
+    proc, rrd = sessions["turn"]
     assert proc.returncode == 0, proc.stderr[-3000:]
     data = read_recording(rrd)
     positions, quaternions = data.get(recording.ACTUAL_POSITION), data.get(recording.ACTUAL_QUATERNION)
-    frame = QuinticWaypoints([0.0, 2.0], [w["position"] for w in waypoints], [[0.0, 0.0, 0.0], [0.1, -0.05, 0.3]])
+    frame = QuinticWaypoints([0.0, 2.0], [w["position"] for w in TURN], [[0.0, 0.0, 0.0], [0.1, -0.05, 0.3]])
     errors = []
     for t, p, q in zip(positions.t, positions.values, quaternions.values, strict=True):
         origin = p - quat_to_matrix(q) @ C

@@ -23,7 +23,7 @@ from cdpr.config.scenario import load_scenario
 from cdpr.errors import InputError
 from cdpr.gym.env import TrackEnv
 from cdpr.gym.task import Task
-from conftest import ROOT, free_port, last_json_line
+from conftest import ROOT, cdpr_here, free_port, last_json_line
 
 ACTIONS = ("residual", "wrench", "tensions")
 UP_TIMEOUT = 120.0  # s: a bound for a short session's processes, never a measurement
@@ -138,9 +138,10 @@ def test_the_same_seed_gives_the_same_episode_and_randomisation_draws_from_it() 
 
 
 def test_an_episode_of_zero_residual_is_the_feedback_linearisation_session(tmp_path: Path) -> None:
-    """The env's base law is the controller's own, step for step: the same tracking error as `cdpr run`."""
-    run = subprocess.run([sys.executable, "-m", "cdpr", "run", "caroca_15kg", "--duration", "1.5", "--quiet"],
-                         capture_output=True, text=True, timeout=UP_TIMEOUT, check=False)
+    """The env's base law is the controller's own, step for step: the same tracking error as `cdpr run` (its
+    nodes in one process: the same nodes and messages as the separate processes, the same states)."""
+    run = subprocess.run([sys.executable, "-m", "cdpr", "run", "caroca_15kg", "--duration", "1.5", "--quiet",
+                          "--in-process"], capture_output=True, text=True, timeout=UP_TIMEOUT, check=False)
     assert run.returncode == 0, run.stderr[-3000:]
     session = last_json_line(run.stdout)
     env = TrackEnv(duration=1.5)
@@ -255,9 +256,10 @@ def test_session_mode_refuses_a_session_of_another_scenario() -> None:
 
 
 def test_cdpr_run_with_the_zero_policy_is_the_plain_session_bit_for_bit(tmp_path: Path) -> None:
-    """`cdpr run --policy` joins the session through the env's session mode; a zero residual is the law itself."""
-    plain = subprocess.run([sys.executable, "-m", "cdpr", "run", "caroca_15kg", "--duration", "0.5", "--quiet"],
-                           capture_output=True, text=True, timeout=UP_TIMEOUT, check=False)
+    """`cdpr run --policy` joins the session through the env's session mode; a zero residual is the law itself (the
+    plain session's nodes in one process: the same states as separate processes)."""
+    plain = subprocess.run([sys.executable, "-m", "cdpr", "run", "caroca_15kg", "--duration", "0.5", "--quiet",
+                            "--in-process"], capture_output=True, text=True, timeout=UP_TIMEOUT, check=False)
     rrd = tmp_path / "policy.rrd"
     policy = subprocess.run([sys.executable, "-m", "cdpr", "run", "caroca_15kg", "--duration", "0.5", "--quiet",
                              "--policy", "cdpr.gym.policy:zero", "--rrd", str(rrd)],
@@ -274,8 +276,12 @@ def test_a_bad_policy_is_one_line_and_exit_code_2(tmp_path: Path) -> None:
     for policy, message in (("nowhere:policy", "policy nowhere:policy: No module named 'nowhere'"),
                             ("cdpr.gym.policy:ALGORITHMS", "policy cdpr.gym.policy:ALGORITHMS: not a function"),
                             (str(tmp_path / "missing.zip"), "policy: no such file")):
-        run = subprocess.run([sys.executable, "-m", "cdpr", "run", "caroca_15kg", "--duration", "0.1", "--policy",
-                              policy], capture_output=True, text=True, timeout=UP_TIMEOUT, check=False)
+        args = ("run", "caroca_15kg", "--duration", "0.1", "--policy", policy)
+        if policy == "nowhere:policy":  # the real command's process once, the others in this process
+            run = subprocess.run([sys.executable, "-m", "cdpr", *args], capture_output=True, text=True,
+                                 timeout=UP_TIMEOUT, check=False)
+        else:
+            run = cdpr_here(*args)
         assert run.returncode == 2, run.stderr[-2000:]
         assert message in run.stderr
 
@@ -292,9 +298,8 @@ def test_the_policys_model_may_differ_from_the_plant(tmp_path: Path) -> None:
         runs[model] = last_json_line(run.stdout)
     # the law trusting a 15 kg model sags under 17.25 kg: a tracking error the matched model does not have
     assert runs["caroca_15kg"]["rms_position_error"] > 3 * runs[None]["rms_position_error"]
-    bad = subprocess.run([sys.executable, "-m", "cdpr", "run", plant, "--duration", "0.1", "--policy",
-                          "cdpr.gym.policy:zero", "--policy-model", str(tmp_path / "none.yaml")],
-                         capture_output=True, text=True, timeout=UP_TIMEOUT, check=False)
+    bad = cdpr_here("run", plant, "--duration", "0.1", "--policy", "cdpr.gym.policy:zero", "--policy-model",
+                    str(tmp_path / "none.yaml"))  # in this process: test_a_bad_policy_... runs one as a process
     assert bad.returncode == 2, bad.stderr[-2000:]
     assert "none.yaml" in bad.stderr
     assert len(bad.stderr.strip().splitlines()) == 1

@@ -89,9 +89,10 @@ def test_bad_planar_files_name_the_field(tmp_path: Path, change: dict, message: 
 
 @pytest.mark.parametrize(("scenario", "plane"), [("planar_xy_4", "xy"), ("kntu_planar", "xz")])
 def test_a_planar_session_tracks_its_trajectory(scenario: str, plane: str) -> None:
-    """A real session (separate processes) of each plane: the x–y robot moves and turns in the horizontal plane
-    with its weight out of the plane, the x–z robot in the vertical one."""
-    proc = cdpr("run", scenario, timeout=300)
+    """A real session of each plane: the x–y robot moves and turns in the horizontal plane with its weight out of
+    the plane, the x–z robot in the vertical one. The x–z session as separate processes, the x–y one with its nodes
+    in one process (`--in-process`: the same nodes and messages, the same states as separate processes)."""
+    proc = cdpr("run", scenario, *(["--in-process"] if plane == "xy" else []), timeout=300)
     assert proc.returncode == 0, proc.stderr[-3000:]
     s = last_json_line(proc.stdout)
     assert s["exit_ok"]

@@ -27,7 +27,7 @@ from cdpr_sim.core import PlatformSim
 from cdpr_sim.elastic import ElasticSim
 from cdpr_sim.sag import SagSim
 from cdpr_sim.ups import UpsSim
-from conftest import cdpr, last_json_line
+from conftest import cdpr, cdpr_in_one_process, last_json_line
 
 SHIPPED = Path(__file__).parents[1] / "shared" / "cdpr"
 
@@ -39,43 +39,56 @@ def frame_of(u: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return p, np.cross(u, p)
 
 
-def wheel(x: np.ndarray, a: np.ndarray, u: np.ndarray, r: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """For the swivel angle σ and the angle φ on the wheel in x: (e, the wheel's centre, the point at φ)."""
-    sigma, phi = x
-    p, q = frame_of(u)
+def dot(x: np.ndarray, y: np.ndarray) -> np.ndarray:
+    return np.einsum("...i,...i->...", x, y)
+
+
+def frames_of(u: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """:func:`frame_of` of every row of u (..., 3)."""
+    p = np.cross(u, [0.3, 0.5, 0.8])
+    p /= np.linalg.norm(p, axis=-1, keepdims=True)
+    return p, np.cross(u, p)
+
+
+def wheel(x: np.ndarray, a: np.ndarray, u: np.ndarray, r: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """For the swivel angle σ and the angle φ on the wheel in x (..., 2): (e, the wheel's centre, the point at φ),
+    for every problem at once (a, u (..., 3), r (...))."""
+    sigma, phi = x[..., 0, None], x[..., 1, None]
+    p, q = frames_of(u)
     e = np.cos(sigma) * p + np.sin(sigma) * q
-    centre = a + r * e
-    return e, centre, centre + r * (np.cos(phi) * e + np.sin(phi) * u)
+    centre = a + r[..., None] * e
+    return e, centre, centre + r[..., None] * (np.cos(phi) * e + np.sin(phi) * u)
 
 
-def conditions(x: np.ndarray, a: np.ndarray, u: np.ndarray, r: float, B: np.ndarray) -> np.ndarray:
+def conditions(x: np.ndarray, a: np.ndarray, u: np.ndarray, r: np.ndarray, B: np.ndarray) -> np.ndarray:
     """Zero where the wheel's plane holds B and the cable leaves the wheel at a tangent (radius ⟂ free span)."""
     e, centre, T = wheel(x, a, u, r)
-    return np.array([(B - a) @ np.cross(u, e), (T - centre) @ (T - B)])
+    return np.stack([dot(B - a, np.cross(u, e)), dot(T - centre, T - B)], axis=-1)
 
 
-def shortest_path(a: np.ndarray, u: np.ndarray, r: float, B: np.ndarray) -> tuple[float, np.ndarray]:
-    """The path a → arc → T → B: the tangent points by Newton's method on :func:`conditions` (numerical Jacobian)
-    from several starts, facing B; of the two tangents the one with the shorter path (the cable wraps the wheel
-    from the axis over to B, not the long way round). Returns (length, T)."""
-    p, q = frame_of(u)
+def shortest_paths(a: np.ndarray, u: np.ndarray, r: np.ndarray, B: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """For each of n problems (a, u, B (n, 3), r (n,)), the path a → arc → T → B: the tangent points by Newton's
+    method on :func:`conditions` (numerical Jacobian) from several starts, facing B; of the two tangents the one
+    with the shorter path (the cable wraps the wheel from the axis over to B, not the long way round). Every
+    problem and start iterates at once (arrays (n, starts, ...)), each on its own. Returns (lengths, T)."""
+    n = len(a)
+    starts = np.array([-np.pi / 2, 0.0, np.pi / 2, np.pi])
+    p, q = frames_of(u)
     v = B - a
-    best: tuple[float, np.ndarray] | None = None
-    for phi0 in (-np.pi / 2, 0.0, np.pi / 2, np.pi):
-        x = np.array([np.arctan2(v @ q, v @ p), phi0])
-        for _ in range(50):
-            F = conditions(x, a, u, r, B)
-            J = np.column_stack([(conditions(x + 1e-7 * np.eye(2)[k], a, u, r, B) - F) / 1e-7 for k in range(2)])
-            x = x - np.linalg.solve(J, F)
-        if np.abs(conditions(x, a, u, r, B)).max() > 1e-12:
-            continue
-        e, _, T = wheel(x, a, u, r)
-        wrap = (np.pi - x[1]) % (2 * np.pi)  # from a (at π) back to T
-        length = r * wrap + float(np.linalg.norm(B - T))
-        if (B - a) @ e > 0 and (best is None or length < best[0]):
-            best = (length, T)
-    assert best is not None
-    return best
+    x = np.stack(np.broadcast_arrays(np.arctan2(dot(v, q), dot(v, p))[:, None], starts[None]), axis=-1)
+    a, u, r, B = (np.repeat(y[:, None], len(starts), axis=1) for y in (a, u, r, B))
+    for _ in range(50):
+        F = conditions(x, a, u, r, B)
+        J = np.stack([(conditions(x + 1e-7 * np.eye(2)[k], a, u, r, B) - F) / 1e-7 for k in range(2)], axis=-1)
+        x = x - np.linalg.solve(J, F[..., None])[..., 0]
+    unsolved = np.abs(conditions(x, a, u, r, B)).max(axis=-1) > 1e-12
+    e, _, T = wheel(x, a, u, r)
+    wrap = (np.pi - x[..., 1]) % (2 * np.pi)  # from a (at π) back to T
+    length = r * wrap + np.linalg.norm(B - T, axis=-1)
+    facing = ~unsolved & (dot(B - a, e) > 0)
+    assert facing.any(axis=1).all()
+    best = np.argmin(np.where(facing, length, np.inf), axis=1)  # the first of the shortest, start by start
+    return length[np.arange(n), best], T[np.arange(n), best]
 
 
 def random_case(rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray, float, np.ndarray]:
@@ -92,9 +105,9 @@ def random_case(rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray, float
 
 def test_lengths_and_directions_equal_the_shortest_path_over_the_wheel() -> None:
     rng = np.random.default_rng(32)
-    for _ in range(200):
-        a, u, r, B = random_case(rng)
-        length, T = shortest_path(a, u, r, B)
+    cases = [random_case(rng) for _ in range(200)]
+    shortest = shortest_paths(*(np.array([case[k] for case in cases]) for k in range(4)))
+    for (a, u, r, B), length, T in zip(cases, *shortest, strict=True):
         g = pulley_geometry(a[None], Pulleys(np.array([r]), u[None]), B[None])
         assert abs(g.lengths[0] - length) <= 1e-9
         np.testing.assert_allclose(g.tangent_points[0], T, rtol=0, atol=1e-9)
@@ -235,20 +248,25 @@ def test_the_paper_s_u_p_s_legs_swivel_over_their_pulleys() -> None:
     assert ups.closure_errors().max() < 1e-5
 
 
-def _session_positions(tmp_path: Path, model: str) -> np.ndarray:
+def _session_run(tmp_path: Path, model: str) -> list[str]:
+    """`cdpr run` of caroca_15kg_pulleys cut to 4 s with the sim's cable ``model``, in-process, recorded to an .rrd."""
     base = yaml.safe_load((SHIPPED / "scenarios" / "caroca_15kg_pulleys.yaml").read_text())
     file = tmp_path / f"{model}.yaml"
     file.write_text(yaml.safe_dump({**base, "name": f"pulleys_{model}", "duration": 4.0,
                                     "sim": {"cable_model": model}}))
-    rrd = tmp_path / f"{model}.rrd"
-    proc = cdpr("run", str(file), "--in-process", "--rrd", str(rrd), timeout=300)
-    assert proc.returncode == 0, proc.stderr[-3000:]
-    return read_recording(rrd).get(recording.ACTUAL_POSITION).values
+    return ["run", str(file), "--in-process", "--rrd", str(tmp_path / f"{model}.rrd")]
 
 
 def test_the_u_p_s_session_over_pulleys_follows_the_ideal_one(tmp_path: Path) -> None:
     """The paper's cable model cross-check (docs/results.md: within 0.1 mm), over exit pulleys."""
-    ideal, ups = _session_positions(tmp_path, "ideal"), _session_positions(tmp_path, "ups")
+    models = ("ideal", "ups")
+    positions = {}
+    procs = cdpr_in_one_process([_session_run(tmp_path, model) for model in models], tmp_path / "runs.json",
+                                timeout=600)  # the two sessions one after the other in one process
+    for model, proc in zip(models, procs, strict=True):
+        assert proc.returncode == 0, proc.stderr[-3000:]
+        positions[model] = read_recording(tmp_path / f"{model}.rrd").get(recording.ACTUAL_POSITION).values
+    ideal, ups = positions["ideal"], positions["ups"]
     assert ideal.shape == ups.shape
     assert np.abs(ideal - ups).max() < 1e-4
 

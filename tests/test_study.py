@@ -2,7 +2,9 @@
 
 The fast tests check the study files and the points they make (no session); the slow ones run real
 sessions: a study on a real two-node Ray cluster started here (``ray.cluster_utils.Cluster``, two nodes
-of 1 CPU), its resumption, and a short tuning whose best scenario is run again.
+of 1 CPU), its resumption, and a short tuning whose best scenario is run again. The slow ones share that
+cluster, started once for the module (each command joins it with ``--address``, as its own Ray job), instead
+of starting Ray on this machine each.
 """
 
 from __future__ import annotations
@@ -11,7 +13,9 @@ import csv
 import json
 import subprocess
 import sys
+from collections.abc import Iterator
 from pathlib import Path
+from typing import Any
 
 import pytest
 import yaml
@@ -209,65 +213,72 @@ def test_points_grids_times_draws_reproducible_and_plant_only(tmp_path: Path) ->
 # Real studies
 
 
-@pytest.mark.slow
-def test_a_study_on_a_two_node_ray_cluster_runs_on_both_and_resumes(tmp_path: Path) -> None:
+@pytest.fixture(scope="module")
+def cluster() -> Iterator[Any]:
+    """A two-node Ray cluster on this machine (two nodes of 1 CPU), shared by the module's real studies."""
     from ray.cluster_utils import Cluster
 
-    study = write(tmp_path, SMALL)
-    out = tmp_path / "out"
     cluster = Cluster(initialize_head=True, head_node_args={"num_cpus": 1, "include_dashboard": False})
     try:
         cluster.add_node(num_cpus=1)
         cluster.wait_for_nodes()
-        node_ids = {n.node_id for n in cluster.list_all_nodes()}
-        assert len(node_ids) == 2
-
-        def study_run() -> dict:
-            proc = subprocess.run([*CDPR, "study", str(study), "--out", str(out), "--address", cluster.address],
-                                  capture_output=True, text=True, timeout=600, check=False)
-            assert proc.returncode == 0, proc.stderr[-3000:]
-            return last_json_line(proc.stdout)
-
-        first = study_run()
-        assert (first["nodes"], first["points"], first["ran"], first["ok"]) == (2, 4, 4, 4), first
-        rows = read_rows(out / "results.csv")
-        assert [int(r["point"]) for r in rows] == [0, 1, 2, 3]
-        assert {(float(r["kp"]), float(r["mass"])) for r in rows} == {(1000.0, 12.0), (1000.0, 15.0),
-                                                                       (1500.0, 12.0), (1500.0, 15.0)}
-        assert all(r["status"] == "ok" and r["error"] == "" for r in rows)
-        assert {r["node"] for r in rows} == node_ids  # points ran on both nodes
-        assert all(float(r["rms_position_error"]) > 0 and r["tensions_within_limits"] == "1" for r in rows)
-        import pyarrow.parquet as pq
-
-        table = pq.read_table(out / "results.parquet")
-        assert table.num_rows == 4
-        assert table.column("rms_position_error").to_pylist() == [float(r["rms_position_error"]) for r in rows]
-        assert yaml.safe_load((out / "study.yaml").read_text())["mode"] in ("in-process", "multi-process")
-        assert (out / "heatmap_rms_position_error.png").stat().st_size > 10_000
-        results = sorted(out.glob("points/*/result.json"))
-        assert len(results) == 4
-        stamps = [p.stat().st_mtime_ns for p in results]
-
-        second = study_run()  # resumes: nothing runs again
-        assert (second["ran"], second["resumed"], second["ok"]) == (0, 4, 4), second
-        assert [p.stat().st_mtime_ns for p in results] == stamps
-        assert read_rows(out / "results.csv") == rows
-
-        results[2].unlink()  # one point lost: only it runs again, to the same result (deterministic)
-        third = study_run()
-        assert (third["ran"], third["resumed"]) == (1, 3), third
-        again = read_rows(out / "results.csv")
-        keep = ("kp", "mass", "rms_position_error", "tension_max", "infeasible_commands", "state_digest")
-        assert [{k: r[k] for k in keep} for r in again] == [{k: r[k] for k in keep} for r in rows]
+        yield cluster
     finally:
         cluster.shutdown()
 
 
 @pytest.mark.slow
-def test_plant_only_errors_run_the_controller_on_the_nominal_model(tmp_path: Path) -> None:
+def test_a_study_on_a_two_node_ray_cluster_runs_on_both_and_resumes(tmp_path: Path, cluster: Any) -> None:
+    study = write(tmp_path, SMALL)
+    out = tmp_path / "out"
+    node_ids = {n.node_id for n in cluster.list_all_nodes()}
+    assert len(node_ids) == 2
+
+    def study_run() -> dict:
+        proc = subprocess.run([*CDPR, "study", str(study), "--out", str(out), "--address", cluster.address],
+                              capture_output=True, text=True, timeout=600, check=False)
+        assert proc.returncode == 0, proc.stderr[-3000:]
+        return last_json_line(proc.stdout)
+
+    first = study_run()
+    assert (first["nodes"], first["points"], first["ran"], first["ok"]) == (2, 4, 4, 4), first
+    rows = read_rows(out / "results.csv")
+    assert [int(r["point"]) for r in rows] == [0, 1, 2, 3]
+    assert {(float(r["kp"]), float(r["mass"])) for r in rows} == {(1000.0, 12.0), (1000.0, 15.0),
+                                                                   (1500.0, 12.0), (1500.0, 15.0)}
+    assert all(r["status"] == "ok" and r["error"] == "" for r in rows)
+    assert {r["node"] for r in rows} == node_ids  # points ran on both nodes
+    assert all(float(r["rms_position_error"]) > 0 and r["tensions_within_limits"] == "1" for r in rows)
+    import pyarrow.parquet as pq
+
+    table = pq.read_table(out / "results.parquet")
+    assert table.num_rows == 4
+    assert table.column("rms_position_error").to_pylist() == [float(r["rms_position_error"]) for r in rows]
+    assert yaml.safe_load((out / "study.yaml").read_text())["mode"] in ("in-process", "multi-process")
+    assert (out / "heatmap_rms_position_error.png").stat().st_size > 10_000
+    results = sorted(out.glob("points/*/result.json"))
+    assert len(results) == 4
+    stamps = [p.stat().st_mtime_ns for p in results]
+
+    second = study_run()  # resumes: nothing runs again
+    assert (second["ran"], second["resumed"], second["ok"]) == (0, 4, 4), second
+    assert [p.stat().st_mtime_ns for p in results] == stamps
+    assert read_rows(out / "results.csv") == rows
+
+    results[2].unlink()  # one point lost: only it runs again, to the same result (deterministic)
+    third = study_run()
+    assert (third["ran"], third["resumed"]) == (1, 3), third
+    again = read_rows(out / "results.csv")
+    keep = ("kp", "mass", "rms_position_error", "tension_max", "infeasible_commands", "state_digest")
+    assert [{k: r[k] for k in keep} for r in again] == [{k: r[k] for k in keep} for r in rows]
+
+
+@pytest.mark.slow
+def test_plant_only_errors_run_the_controller_on_the_nominal_model(tmp_path: Path, cluster: Any) -> None:
     text = MONTE_CARLO.replace("samples: 3", "samples: 1").replace("values: [qp, closed-form]", "values: [qp]")
     out = tmp_path / "out"
-    proc = subprocess.run([*CDPR, "study", write(tmp_path, text), "--out", str(out), "--quiet"],
+    proc = subprocess.run([*CDPR, "study", write(tmp_path, text), "--out", str(out), "--quiet",
+                           "--address", cluster.address],
                           capture_output=True, text=True, timeout=600, check=False)
     assert proc.returncode == 0, proc.stderr[-3000:]
     summary = last_json_line(proc.stdout)
@@ -280,7 +291,7 @@ def test_plant_only_errors_run_the_controller_on_the_nominal_model(tmp_path: Pat
 
 
 @pytest.mark.slow
-def test_tune_finds_a_best_scenario_that_loads_and_runs(tmp_path: Path, session_id: str) -> None:
+def test_tune_finds_a_best_scenario_that_loads_and_runs(tmp_path: Path, session_id: str, cluster: Any) -> None:
     study = write(tmp_path, """
 name: tune_test
 scenario: caroca_15kg
@@ -293,7 +304,7 @@ metrics: [rms_position_error, max_position_error]
 tune: {metric: rms_position_error, trials: 3, fidelities: [0.5, 1.0]}
 """)
     out = tmp_path / "tune"
-    proc = subprocess.run([*CDPR, "tune", str(study), "--out", str(out), "--quiet"],
+    proc = subprocess.run([*CDPR, "tune", str(study), "--out", str(out), "--quiet", "--address", cluster.address],
                           capture_output=True, text=True, timeout=900, check=False)
     assert proc.returncode == 0, proc.stderr[-3000:]
     summary = last_json_line(proc.stdout)
@@ -317,13 +328,13 @@ tune: {metric: rms_position_error, trials: 3, fidelities: [0.5, 1.0]}
 
 
 @pytest.mark.slow
-def test_study_throughput_measures_both_ways() -> None:
+def test_study_throughput_measures_both_ways(cluster: Any) -> None:
     import ray
 
     from cdpr.tools.study import study_throughput
 
     try:
-        result = study_throughput(points=2, duration=0.3)
+        result = study_throughput(points=2, duration=0.3, address=cluster.address)
     finally:
         ray.shutdown()
     assert set(result) >= {"alone_steps_per_s", "study_steps_per_s", "ratio", "mode"}

@@ -32,7 +32,7 @@ from cdpr.mechanics.workspace import (
     wrench_matrices,
     wrenches_feasible,
 )
-from conftest import cdpr, last_json_line
+from conftest import cdpr, cdpr_here, last_json_line
 
 HERE = Path(__file__).parent
 BAD_STATIC = HERE / "scenarios" / "leaves_workspace.yaml"
@@ -336,6 +336,9 @@ def test_cli_workspace_rejects_bad_arguments() -> None:
         (("--tmin", "10", "--tmax", "5"), "--tmin/--tmax"),
         (("--payload", "-1"), "payload"),
     ]:
-        proc = cdpr("workspace", "point_mass_4", *args, timeout=60)
+        if args[0] == "--step":  # the first as the real command's process, the others in this process
+            proc = cdpr("workspace", "point_mass_4", *args, timeout=60)
+        else:
+            proc = cdpr_here("workspace", "point_mass_4", *args)
         assert proc.returncode == 2, proc.stderr
         assert text in proc.stderr, proc.stderr
