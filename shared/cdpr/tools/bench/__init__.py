@@ -24,9 +24,9 @@ when the machine is shared and its absolute speed drifts):
    (generated robot and scenario files in a temporary directory);
 7–10. the MuJoCo peer, a ROS 2 controller, cameras, the Gymnasium environment (their modules' docstrings).
 
-Medians over repeats; ``--quick`` runs every part, shorter, in under two minutes. Results are printed
-as a table and written as JSON. The Linux ``/proc`` file system gives the per-process CPU figures
-(elsewhere they are left out).
+Medians over repeats; ``--quick`` runs every part once, a few hundred steps a session (a quick look, about a
+minute). Results are printed as a table and written as JSON. The Linux ``/proc`` file system gives the
+per-process CPU figures (elsewhere they are left out).
 """
 
 

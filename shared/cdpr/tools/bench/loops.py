@@ -130,25 +130,32 @@ def _children(pid: int) -> list[int]:
     return out
 
 
-def _run_queue_wait(pid: int) -> float:
-    """Seconds the threads of ``pid`` have spent runnable but waiting for a CPU (``/proc/PID/task/*/
-    schedstat``, its second field; 0 where the kernel keeps no such statistics)."""
-    total = 0
+def _thread_waits(pid: int) -> dict[int, float]:
+    """Seconds each thread of ``pid`` has spent runnable but waiting for a CPU, by thread id (``/proc/PID/task/*/
+    schedstat``, its second field; none where the kernel keeps no such statistics)."""
+    out: dict[int, float] = {}
     try:
         for task in os.listdir(f"/proc/{pid}/task"):
             with contextlib.suppress(OSError, IndexError, ValueError), open(f"/proc/{pid}/task/{task}/schedstat") as f:
-                total += int(f.read().split()[1])
+                out[int(task)] = int(f.read().split()[1]) / 1e9
     except OSError:
         pass
-    return total / 1e9
+    return out
 
 
-def _process_cpu(root: int, waits: dict[str, float] | None = None) -> dict[str, float] | None:
-    """CPU seconds (user + system) of ``root`` and its descendants, by role (``run``, ``sim``, …);
-    with ``waits``, their seconds waiting for a CPU, by role, added to it. None once one of them has
-    exited (a zombie: its command line, hence its role, and its threads' waits are gone)."""
+def _waited(before: dict[int, float], after: dict[int, float]) -> float:
+    """Seconds the threads of a process waited for a CPU between two readings of :func:`_thread_waits`: each
+    thread of the second since the first, or since it started (a thread that ended between them is left out:
+    the sum of the threads alive at each reading would fall when one ends)."""
+    return sum(w - b if (b := before.get(tid, 0.0)) <= w else w for tid, w in after.items())
+
+
+def _tree(root: int, waits: bool = False) -> dict[int, tuple[str, float, dict[int, float]]] | None:
+    """The processes of ``root``'s tree (``root`` included): pid -> (role: ``run``, ``sim``, …; CPU seconds,
+    user + system; with ``waits``, its threads' :func:`_thread_waits`). None once one of them has exited (a
+    zombie: its command line, hence its role, and its threads' waits are gone)."""
     tick = os.sysconf("SC_CLK_TCK")
-    out: dict[str, float] = {}
+    out: dict[int, tuple[str, float, dict[int, float]]] = {}
     todo = [root]
     while todo:
         pid = todo.pop()
@@ -165,27 +172,55 @@ def _process_cpu(root: int, waits: dict[str, float] | None = None) -> dict[str, 
         # `python -m cdpr run …` is "run"; its services are `python -m cdpr.runtime NAME …`
         launcher = next((a for a in ("cdpr", "cdpr.runtime") if a in argv[:-1]), None)
         role = argv[argv.index(launcher) + 1] if launcher is not None else "other"
-        out[role] = out.get(role, 0.0) + (int(fields[11]) + int(fields[12])) / tick
-        if waits is not None:
-            waits[role] = waits.get(role, 0.0) + _run_queue_wait(pid)
+        out[pid] = (role, (int(fields[11]) + int(fields[12])) / tick, _thread_waits(pid) if waits else {})
     return out
 
 
-def _pid_cpu(pid: int) -> float:
-    """CPU seconds (user + system) of one process (0 once it is gone)."""
+def _process_cpu(root: int, waits: dict[str, float] | None = None) -> dict[str, float] | None:
+    """CPU seconds (user + system) of ``root`` and its descendants, by role (``run``, ``sim``, …);
+    with ``waits``, their seconds waiting for a CPU, by role, added to it. None once one of them has
+    exited (a zombie: its command line, hence its role, and its threads' waits are gone)."""
+    tree = _tree(root, waits is not None)
+    if tree is None:
+        return None
+    out: dict[str, float] = {}
+    for role, cpu, wait in tree.values():
+        out[role] = out.get(role, 0.0) + cpu
+        if waits is not None:
+            waits[role] = waits.get(role, 0.0) + sum(wait.values())
+    return out
+
+
+def _pid_cpu(pid: int) -> float | None:
+    """CPU seconds (user + system) of one process (None once it has exited)."""
     try:
         with open(f"/proc/{pid}/stat") as f:
             fields = f.read().rsplit(")", 1)[1].split()
-        return (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
+        return None if fields[0] == "Z" else (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
     except (OSError, IndexError, ValueError):
-        return 0.0
+        return None
 
 
-_PROGRESS = re.compile(r"\[cdpr\] step (\d+)/")
+_PROGRESS = re.compile(r"\[cdpr\] step (\d+)/(\d+)")
+_FINISHED = re.compile(r"\[clock\] finished (\d+) steps in (\d+(?:\.\d*)?) s")
+READ_EVERY = 0.05  # s between two readings of a session's processes (until two progress lines have given marks)
+_WALL_ROUNDING = 0.01  # s: the clock's line gives the loop's wall time to 0.01 s
+
+# A reading of a session's processes: pid -> (role, CPU seconds, its threads' waits; None: a process of
+# SessionRun.also, whose waits are not counted)
+Reading = dict[int, tuple[str, float, dict[int, float] | None]]
 
 
 class SessionRun:
-    """``cdpr run`` in a subprocess; reads its progress lines to measure the CPU of the steady state."""
+    """``cdpr run`` in a subprocess, and the CPU its processes spend per step in the steady state: between two
+    readings of every process's CPU (``/proc``) within the loop, over the steps between them.
+
+    The readings are those taken as the progress lines come (a second apart at least, the step from the line),
+    the first and the last while the loop runs; for a session too short to print two (a few hundred steps),
+    those taken every :data:`READ_EVERY` seconds, the first and the last within its loop — which the clock's
+    line at its end dates (its wall time, up to when the line came) — each one's step the loop's share of its
+    wall time by then.
+    """
 
     def __init__(self, args: Sequence[str], session: str, command: str = "run",
                  env: dict[str, str] | None = None) -> None:
@@ -195,22 +230,67 @@ class SessionRun:
             [sys.executable, "-m", "cdpr", command, *args, "--session", session],
             stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=env,
         )
-        self._marks: list[tuple[int, dict[str, float], dict[str, float]]] = []
+        self._marks: list[tuple[int, Reading]] = []  # (step, reading) at each progress line within the loop
+        self._readings: list[tuple[float, Reading]] = []  # (time.monotonic(), reading) every READ_EVERY s
+        self._finished: tuple[float, int, float] | None = None  # when the clock's last line came, steps, wall s
+        # the readings start with the first progress line, once the services are released (in-process, the
+        # launcher prints none before the loop has ended: from the start)
+        self._started = "--in-process" in args
+        self._done = threading.Event()
         self._stderr: list[str] = []
         self._reader = threading.Thread(target=self._read, args=(self.proc.stderr,), daemon=True)
         self._reader.start()
+        self._sampler = threading.Thread(target=self._sample, daemon=True)
+        self._sampler.start()
 
     def _read(self, stream: IO[str]) -> None:
         for line in stream:
             match = _PROGRESS.search(line)
-            if match and int(match.group(1)) > 0:
-                waits: dict[str, float] = {}
-                if (cpu := _process_cpu(self.proc.pid, waits)) is not None:  # not once the services leave
-                    for role, pid in self.also.items():
-                        cpu[role] = _pid_cpu(pid)
-                    self._marks.append((int(match.group(1)), cpu, waits))
-            elif not match:
-                self._stderr.append(line)
+            if match:  # a mark while the loop runs (not the last line, which comes once it has ended)
+                self._started = True
+                k, n = int(match.group(1)), int(match.group(2))
+                if 0 < k < n and self._finished is None and (reading := self._reading()) is not None:
+                    self._marks.append((k, reading))  # (None once the services leave)
+                continue
+            self._stderr.append(line)
+            if (end := _FINISHED.search(line)) is not None:
+                self._finished = (time.monotonic(), int(end.group(1)), float(end.group(2)))
+                if len(self._marks) < 2 and (reading := self._reading()) is not None:
+                    self._readings.append((self._finished[0], reading))  # the loop's end (if all are still there)
+
+    def _sample(self) -> None:
+        """A reading every :data:`READ_EVERY` s from the services' start to the loop's end (the clock's line),
+        unless two progress lines have given marks."""
+        while not self._done.wait(READ_EVERY):
+            if len(self._marks) >= 2 or self._finished is not None or self.proc.poll() is not None:
+                return
+            now = time.monotonic()
+            if self._started and (reading := self._reading()) is not None:
+                self._readings.append((now, reading))
+
+    def _reading(self) -> Reading | None:
+        """The CPU of every process of the session (and of :attr:`also`); None once one has exited."""
+        if not (tree := _tree(self.proc.pid, waits=True)):  # None: one has exited; empty: all have
+            return None
+        reading: Reading = dict(tree)
+        for role, pid in list(self.also.items()):
+            if (cpu := _pid_cpu(pid)) is None:
+                return None
+            reading[pid] = (role, cpu, None)
+        return reading
+
+    def _span(self) -> tuple[float, Reading, Reading] | None:
+        """The steps between the first and the last reading within the loop (the last that finds every
+        process of the first), and the two readings; None without two such readings."""
+        marks: list[tuple[float, Reading]] = [(float(k), r) for k, r in self._marks]
+        if len(marks) < 2 and self._finished is not None and self._finished[2] > 0:
+            end, steps, wall = self._finished
+            marks = sorted(((steps * (t - end + wall) / wall, r) for t, r in self._readings
+                            if end - wall + _WALL_ROUNDING <= t <= end), key=lambda m: m[0])
+        if len(marks) < 2:
+            return None
+        (k0, first), (k1, last) = marks[0], next(m for m in reversed(marks) if m[1].keys() >= marks[0][1].keys())
+        return k1 - k0, first, last
 
     def result(self, timeout: float) -> dict[str, Any]:
         """Wait for the session; its summary plus ``cpu_us_per_step`` (None when it ran too briefly)."""
@@ -219,9 +299,12 @@ class SessionRun:
         except subprocess.TimeoutExpired:
             self.proc.kill()
             raise
+        finally:
+            self._done.set()
         assert self.proc.stdout is not None
         out = self.proc.stdout.read()
         self._reader.join(timeout=5.0)
+        self._sampler.join(timeout=5.0)
         lines = [ln for ln in out.splitlines() if ln.strip()]
         try:
             summary: dict[str, Any] = json.loads(lines[-1])
@@ -231,14 +314,18 @@ class SessionRun:
         summary["cpu_us_per_step"] = None
         summary["cpu_us_per_step_by_process"] = {}
         summary["wait_us_per_step_by_process"] = {}  # runnable, waiting for a CPU
-        if len(self._marks) >= 2:
-            (k0, c0, w0), (k1, c1, w1) = self._marks[0], self._marks[-1]
-            if k1 > k0:
-                by = {r: 1e6 * (c1.get(r, 0.0) - c0.get(r, 0.0)) / (k1 - k0) for r in c1}
-                summary["cpu_us_per_step_by_process"] = by
-                summary["cpu_us_per_step"] = sum(by.values())
-                summary["wait_us_per_step_by_process"] = {
-                    r: 1e6 * (w1.get(r, 0.0) - w0.get(r, 0.0)) / (k1 - k0) for r in w1}
+        if (span := self._span()) is not None and span[0] > 0:
+            steps, first, last = span
+            cpu: dict[str, float] = {}
+            waits: dict[str, float] = {}
+            for pid, (role, c1, w1) in last.items():  # a process that started between them: all of its CPU
+                _, c0, w0 = first.get(pid, (role, 0.0, {}))
+                cpu[role] = cpu.get(role, 0.0) + 1e6 * (c1 - c0) / steps
+                if w1 is not None:
+                    waits[role] = waits.get(role, 0.0) + 1e6 * _waited(w0 or {}, w1) / steps
+            summary["cpu_us_per_step_by_process"] = cpu
+            summary["cpu_us_per_step"] = sum(cpu.values())
+            summary["wait_us_per_step_by_process"] = waits
         return summary
 
 

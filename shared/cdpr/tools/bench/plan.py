@@ -53,15 +53,15 @@ FULL = BenchPlan(
     realtime_duration=60.0, realtime_2khz_duration=10.0, tda_sizes=(4, 8, 12, 16), tda_calls=3000,
     session_counts=(1, 2, 4, 8), session_duration=6.0, cable_counts=(4, 8, 12, 16), cable_duration=6.0,
 )
-# (ros2_duration: the cdpr-controlled session's CPU per process comes from two progress lines a second apart at
-# least; 4 s of sim at ~2 800 steps/s gave one now and then, and no figure)
+# A quick look at every part: a few hundred steps per session (each process's CPU per step read over the loop
+# even when it prints no progress line: SessionRun), one run of each.
 QUICK = BenchPlan(
-    mono_steps=2000, mono_repeats=1, loop_duration=4.0, loop_repeats=1, rtt_count=2000,
-    realtime_duration=3.0, realtime_2khz_duration=3.0, tda_sizes=(4, 8, 16), tda_calls=400,
-    session_counts=(1, 2, 4), session_duration=3.0, cable_counts=(4, 16), cable_duration=3.0,
-    ros2_duration=10.0, ros2_repeats=1, camera_duration=3.0, camera_repeats=1, camera_realtime_duration=3.0,
-    camera_realtime_repeats=1,
-    gym_duration=2.0, gym_rounds=1, gym_session_duration=1.0, gym_vector_steps=100,
+    mono_steps=300, mono_repeats=1, loop_duration=0.3, loop_repeats=1, rtt_count=1000,
+    realtime_duration=0.3, realtime_2khz_duration=0.2, tda_sizes=(4, 8, 16), tda_calls=50,
+    session_counts=(1, 2), session_duration=0.3, cable_counts=(4, 16), cable_duration=0.3,
+    startup_repeats=1, ros2_duration=0.3, ros2_repeats=1, camera_duration=0.3, camera_repeats=1,
+    camera_realtime_duration=0.3, camera_realtime_repeats=1,
+    gym_duration=0.3, gym_rounds=1, gym_session_duration=0.3, gym_vector_steps=50,
 )
 
 

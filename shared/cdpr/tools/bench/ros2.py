@@ -5,8 +5,9 @@ session's router: the cdpr controller (``cdpr controller``), or the ROS 2 contro
 :mod:`cdpr.tools.bench.ros2_controller` (written with zenoh-ros2-sdk, no cdpr import) behind ``--ros2`` (the
 ros2 node in the sim's process, ``sim+ros2``). Runs alternate (cdpr, ROS 2, cdpr, …) so that both sample the
 same minutes of a shared machine. The ROS 2 side's CPU per step is the ros2 node's plus the ROS 2
-controller's, over the steady state (the session's progress lines); the node's is the ``sim+ros2`` process's
-less the sim's in the cdpr-controlled runs (an estimate: the two sims do not exchange the same messages).
+controller's, over the steady state (:class:`~cdpr.tools.bench.loops.SessionRun`); the node's is the
+``sim+ros2`` process's less the sim's in the cdpr-controlled runs (an estimate: the two sims do not exchange
+the same messages).
 Needs the ``bench`` extra (zenoh-ros2-sdk, rosbags).
 """
 
@@ -19,6 +20,7 @@ import subprocess
 import sys
 import tempfile
 import uuid
+from importlib.util import find_spec
 from pathlib import Path
 from typing import Any
 
@@ -26,14 +28,14 @@ from cdpr.tools.bench.loops import SessionRun
 from cdpr.tools.launch import free_port
 
 TIMEOUT = 900.0
+CONTROLLER = Path(__file__).with_name("ros2_controller.py")  # run by its path: no cdpr import
 
 
 def bench_ros2(scenario: str, duration: float | None, rounds: int) -> dict[str, Any]:
     """The two sessions ``rounds`` times each (module docstring); rates, CPU per step and their ratio."""
+    if find_spec("zenoh_ros2_sdk") is None:  # the ROS 2 controller's library (in its process: not imported here)
+        return {"available": False, "reason": "zenoh_ros2_sdk is not installed (pip install 'cdpr[bench]')"}
     try:
-        import zenoh_ros2_sdk  # noqa: F401  (the ROS 2 controller's library)
-
-        from cdpr.tools.bench import ros2_controller
         from cdpr.tools.bench.ros2_messages import make_cache
     except ImportError as exc:
         return {"available": False, "reason": f"{exc.name} is not installed (pip install 'cdpr[bench]')"}
@@ -44,7 +46,7 @@ def bench_ros2(scenario: str, duration: float | None, rounds: int) -> dict[str, 
                "GIT_CONFIG_GLOBAL": str(Path(tmp) / "gitconfig")}
         for _ in range(rounds):
             for kind in runs:
-                runs[kind].append(_session(scenario, duration, kind, env, Path(ros2_controller.__file__)))
+                runs[kind].append(_session(scenario, duration, kind, env, CONTROLLER))
     out: dict[str, Any] = {"available": True, "scenario": scenario, "steps": runs["cdpr"][0]["steps"],
                            "repeats": rounds}
     for kind, rs in runs.items():
@@ -71,7 +73,10 @@ def _session(scenario: str, duration: float | None, kind: str, env: dict[str, st
     endpoint = f"tcp/127.0.0.1:{port}"
     session = f"benchros2{kind}-{uuid.uuid4().hex[:6]}"
     timing = [] if duration is None else ["--duration", repr(duration)]
-    args = [scenario, "--without", "controller", "--listen", endpoint, *timing, *(["--ros2"] if kind == "ros2" else [])]
+    # the topics under /cdpr, where the ROS 2 controller looks by default (the session id, with its "-", is no
+    # ROS 2 name: the ros2 node's default namespace, /cdpr/<session>, cannot be made of it)
+    ros2 = ["--ros2", "--ros-namespace", "/cdpr"] if kind == "ros2" else []
+    args = [scenario, "--without", "controller", "--listen", endpoint, *timing, *ros2]
     run = SessionRun(args, session, command="up", env=env)
     if kind == "ros2":
         argv = [sys.executable, str(controller), "--router-port", str(port)]

@@ -1,4 +1,8 @@
-"""The Zenoh round trip between two processes: ``python -m cdpr.tools.bench.zenoh_rtt echo|ping ...``."""
+"""The Zenoh round trip between two processes: ``python -P .../zenoh_rtt.py echo|ping ...``.
+
+The two processes run this file by its path, not as ``-m cdpr.tools.bench.zenoh_rtt``: that would import the
+package ``cdpr.tools.bench`` first (the whole bench, ~0.7 s of CPU each), and they need only the transport.
+"""
 
 from __future__ import annotations
 
@@ -13,29 +17,28 @@ import time
 from typing import Any
 
 # --------------------------------------------------------------------------------------------------
-# 3. The Zenoh round trip: `python -m cdpr.tools.bench echo|ping ENDPOINT ...`
+# 3. The Zenoh round trip: `python -P zenoh_rtt.py echo|ping ENDPOINT ...`
 
 _PING, _PONG = "cdpr/bench-rtt/ping", "cdpr/bench-rtt/pong"
 _RTT_PAYLOAD = 240  # bytes, about a state message of 8 cables
 
 
-def _rtt_config(endpoint: str, mode: str) -> Any:
-    """Clients of the router at ``endpoint``, or peers that meet through it and link directly (as the
-    services of ``cdpr run`` do)."""
+def _rtt_config(endpoint: str, mode: str, listen: str) -> Any:
+    """Clients of the router at ``endpoint``, or peers that meet through it and link directly, each listening
+    at ``listen`` (as the services of ``cdpr run`` do: :data:`cdpr.tools.launch.PEER_LISTEN`)."""
     from cdpr.runtime.transport import zenoh_config
-    from cdpr.tools.launch import PEER_LISTEN
 
     if mode == "peer":
-        return zenoh_config("peer", connect=[endpoint], listen=[PEER_LISTEN])
+        return zenoh_config("peer", connect=[endpoint], listen=[listen])
     return zenoh_config("client", connect=[endpoint])
 
 
-def _rtt_echo(endpoint: str, mode: str) -> None:
+def _rtt_echo(endpoint: str, mode: str, listen: str) -> None:
     """Answer every ping with the same payload, from the Inbox callback (as the services do)."""
     from cdpr.runtime.transport import PUBLISH_OPTS, Inbox, open_session
 
     done = threading.Event()
-    with open_session(_rtt_config(endpoint, mode), "bench echo") as session:
+    with open_session(_rtt_config(endpoint, mode, listen), "bench echo") as session:
         pub = session.declare_publisher(_PONG, **PUBLISH_OPTS)
 
         def on_ping(event: Any) -> None:
@@ -52,7 +55,7 @@ def _rtt_echo(endpoint: str, mode: str) -> None:
         pub.undeclare()
 
 
-def _rtt_ping(endpoint: str, count: int, mode: str, warmup: int = 300) -> None:
+def _rtt_ping(endpoint: str, count: int, mode: str, listen: str, warmup: int = 300) -> None:
     """Ping-pong ``count`` times (after ``warmup``), the next ping sent from the pong's callback."""
     from cdpr.runtime.transport import PUBLISH_OPTS, Inbox, open_session
 
@@ -61,7 +64,7 @@ def _rtt_ping(endpoint: str, count: int, mode: str, warmup: int = 300) -> None:
     sent_at = [0.0]
     started, done = threading.Event(), threading.Event()
     cpu = [0.0]
-    with open_session(_rtt_config(endpoint, mode), "bench ping") as session:
+    with open_session(_rtt_config(endpoint, mode, listen), "bench ping") as session:
         pub = session.declare_publisher(_PING, **PUBLISH_OPTS)
         pad = bytes(_RTT_PAYLOAD - 8)
 
@@ -122,14 +125,14 @@ def bench_zenoh_rtt(count: int) -> dict[str, Any]:
 
 def _zenoh_rtt(count: int, mode: str) -> dict[str, Any]:
     from cdpr.runtime.transport import open_session, zenoh_config
-    from cdpr.tools.launch import free_port
+    from cdpr.tools.launch import PEER_LISTEN, free_port
 
     endpoint = f"tcp/127.0.0.1:{free_port()}"
-    module = [sys.executable, "-m", __name__]
+    script = [sys.executable, "-P", __file__]  # -P: not this file's folder first on sys.path (gym.py, …)
     with open_session(zenoh_config("router", listen=[endpoint]), "bench router"):
-        echo = subprocess.Popen([*module, "echo", endpoint, mode], stdout=subprocess.PIPE, text=True)
+        echo = subprocess.Popen([*script, "echo", endpoint, mode, PEER_LISTEN], stdout=subprocess.PIPE, text=True)
         try:
-            ping = subprocess.run([*module, "ping", endpoint, str(count), mode], capture_output=True,
+            ping = subprocess.run([*script, "ping", endpoint, str(count), mode, PEER_LISTEN], capture_output=True,
                                   text=True, timeout=600, check=False)
             echo_out, _ = echo.communicate(timeout=30)
         finally:
@@ -148,8 +151,8 @@ def _zenoh_rtt(count: int, mode: str) -> dict[str, Any]:
 if __name__ == "__main__":  # helper processes of the round-trip benchmark
     role, *rest = sys.argv[1:]
     if role == "echo":
-        _rtt_echo(rest[0], rest[1])
+        _rtt_echo(rest[0], rest[1], rest[2])
     elif role == "ping":
-        _rtt_ping(rest[0], int(rest[1]), rest[2])
+        _rtt_ping(rest[0], int(rest[1]), rest[2], rest[3])
     else:
         raise SystemExit(f"unknown role {role!r}")
