@@ -3,6 +3,9 @@
     cdpr up caroca_15kg --without controller --ros2                    # the session waits for its controller
     RMW_IMPLEMENTATION=rmw_zenoh_cpp python3 examples/ros2/pd_controller.py   # ROS 2 Jazzy or later, sourced
 
+Its topics are relative to its namespace, /cdpr (the session "default"'s); a session labA's are below /cdpr/labA:
+``python3 examples/ros2/pd_controller.py --ros-args -r __ns:=/cdpr/labA``.
+
 The cables leave the frame at its frame points: for a robot with exit pulleys (session_info's "pulleys"), take
 each cable's direction from where it leaves its pulley instead (docs/robots.md, "Exit pulleys").
 """
@@ -48,11 +51,11 @@ def main():
     from std_msgs.msg import String
 
     rclpy.init()
-    node = rclpy.create_node("pd_controller")
+    node = rclpy.create_node("pd_controller", namespace="/cdpr")  # --ros-args -r __ns:=… for another session
     info = {}
     latched = QoSProfile(depth=1, durability=DurabilityPolicy.TRANSIENT_LOCAL)
-    node.create_subscription(String, "/cdpr/session_info", lambda m: info.update(json.loads(m.data)), latched)
-    pub = node.create_publisher(JointState, "/cdpr/joint_commands", 10)
+    node.create_subscription(String, "session_info", lambda m: info.update(json.loads(m.data)), latched)
+    pub = node.create_publisher(JointState, "joint_commands", 10)
     types = [JointState, PoseStamped, TwistStamped, PoseStamped, TwistStamped, AccelStamped]
 
     def step(joints, *state_and_setpoint):  # the six messages of one step: all with the state's stamp
@@ -60,7 +63,7 @@ def main():
             t = tensions(info, *state_and_setpoint)
             pub.publish(JointState(header=joints.header, name=joints.name, effort=t.tolist()))
 
-    sync = TimeSynchronizer([Subscriber(node, k, f"/cdpr/{n}") for k, n in zip(types, TOPICS, strict=True)], 10)
+    sync = TimeSynchronizer([Subscriber(node, k, n) for k, n in zip(types, TOPICS, strict=True)], 10)
     sync.registerCallback(step)
     rclpy.spin(node)
 
