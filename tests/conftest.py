@@ -28,6 +28,19 @@ SECURE = DOCKER / "compose.secure.yaml"
 REALTIME = DOCKER / "compose.realtime.yaml"
 
 
+# The modules that cost the most, first: pytest-xdist hands each worker whole modules (make test: --dist
+# loadscope) in collection order, so that the longest do not start last and leave one worker alone at the end.
+# A scheduling hint only: any order passes.
+COSTLY_FIRST = ("test_fuzz.py", "test_ros2.py", "test_acl.py", "test_faults.py", "test_realtime.py",
+                "test_experiments.py", "test_load.py", "test_winch_loop.py", "test_bench.py", "test_cable_models.py",
+                "test_remote.py", "test_camera.py", "test_study.py", "test_gym.py", "test_pulley.py")
+
+
+def pytest_collection_modifyitems(items: list[pytest.Item]) -> None:
+    rank = {name: i for i, name in enumerate(COSTLY_FIRST)}
+    items.sort(key=lambda item: rank.get(item.path.name, len(rank)))  # stable: within a module, its own order
+
+
 def last_json_line(stdout: str) -> dict:
     lines = [ln for ln in stdout.strip().splitlines() if ln.strip()]
     assert lines, "no output on stdout"
