@@ -212,8 +212,8 @@ Reading = dict[int, tuple[str, float, dict[int, float] | None]]
 
 
 class SessionRun:
-    """``cdpr run`` in a subprocess, and the CPU its processes spend per step in the steady state: between two
-    readings of every process's CPU (``/proc``) within the loop, over the steps between them.
+    """``cdpr run`` in a subprocess, and the CPU its processes spend per step in the steady state: each process's
+    CPU (``/proc``) between its first and its last reading within the loop, over the steps between them.
 
     The readings are those taken as the progress lines come (a second apart at least, the step from the line),
     the first and the last while the loop runs; for a session too short to print two (a few hundred steps),
@@ -279,18 +279,15 @@ class SessionRun:
             reading[pid] = (role, cpu, None)
         return reading
 
-    def _span(self) -> tuple[float, Reading, Reading] | None:
-        """The steps between the first and the last reading within the loop (the last that finds every
-        process of the first), and the two readings; None without two such readings."""
+    def _within(self) -> list[tuple[float, Reading]]:
+        """The readings within the loop, in order, each with its step: the progress lines' marks, or else (a
+        session too short for two) the regular readings inside the loop's wall time."""
         marks: list[tuple[float, Reading]] = [(float(k), r) for k, r in self._marks]
         if len(marks) < 2 and self._finished is not None and self._finished[2] > 0:
             end, steps, wall = self._finished
             marks = sorted(((steps * (t - end + wall) / wall, r) for t, r in self._readings
                             if end - wall + _WALL_ROUNDING <= t <= end), key=lambda m: m[0])
-        if len(marks) < 2:
-            return None
-        (k0, first), (k1, last) = marks[0], next(m for m in reversed(marks) if m[1].keys() >= marks[0][1].keys())
-        return k1 - k0, first, last
+        return marks
 
     def result(self, timeout: float) -> dict[str, Any]:
         """Wait for the session; its summary plus ``cpu_us_per_step`` (None when it ran too briefly)."""
@@ -314,15 +311,20 @@ class SessionRun:
         summary["cpu_us_per_step"] = None
         summary["cpu_us_per_step_by_process"] = {}
         summary["wait_us_per_step_by_process"] = {}  # runnable, waiting for a CPU
-        if (span := self._span()) is not None and span[0] > 0:
-            steps, first, last = span
-            cpu: dict[str, float] = {}
-            waits: dict[str, float] = {}
-            for pid, (role, c1, w1) in last.items():  # a process that started between them: all of its CPU
-                _, c0, w0 = first.get(pid, (role, 0.0, {}))
-                cpu[role] = cpu.get(role, 0.0) + 1e6 * (c1 - c0) / steps
+        # each process over its own first and last reading within the loop (one may be missed by a reading:
+        # taken as it forked, or as the session ended), its role as the last of them says (a forked service
+        # takes its title as it starts)
+        cpu: dict[str, float] = {}
+        waits: dict[str, float] = {}
+        within = self._within()
+        for pid in {pid for _, r in within for pid in r}:
+            seen = [(k, r[pid]) for k, r in within if pid in r]
+            (k0, (_, c0, w0)), (k1, (role, c1, w1)) = seen[0], seen[-1]
+            if k1 > k0:
+                cpu[role] = cpu.get(role, 0.0) + 1e6 * (c1 - c0) / (k1 - k0)
                 if w1 is not None:
-                    waits[role] = waits.get(role, 0.0) + 1e6 * _waited(w0 or {}, w1) / steps
+                    waits[role] = waits.get(role, 0.0) + 1e6 * _waited(w0 or {}, w1) / (k1 - k0)
+        if cpu:
             summary["cpu_us_per_step_by_process"] = cpu
             summary["cpu_us_per_step"] = sum(cpu.values())
             summary["wait_us_per_step_by_process"] = waits
