@@ -5,6 +5,7 @@ it in this process (the same `cdpr.tools.cli.main`, without a new interpreter's 
 from __future__ import annotations
 
 import json
+import re
 import subprocess
 
 import numpy as np
@@ -41,6 +42,32 @@ def test_ik_matches_the_library() -> None:
     assert np.allclose(out["lengths"], k.lengths)
     assert np.allclose(out["wrench_matrix"], k.wrench_matrix)
     assert np.array(out["directions"]).shape == (8, 3)
+    assert (out["reachable"], out["problems"]) == (True, [])
+
+
+@pytest.mark.parametrize(("robot", "pose", "problem"), [
+    ("caroca", ("0", "0", "19"), r"^beyond max_length: cable 1 1\d\.\d+ m > 10 m, cable 2 "),
+    ("caroca", ("0", "0", "3.2", "0", "0", "0"), None),  # reachable: inside the box, every cable short enough
+    ("caroca", ("4.5", "0", "1.5"), r"^the platform at \[4\.5, 0, 1\.5\] m is outside the frame box \[-4, -2\.1, "
+                                    r"0\.02\] … \[4, 2\.5, 3\.5\] m$"),
+    ("caroca", ("0", "0", "-0.5"), r"^the platform at \[0, 0, -0\.5\] m is below the floor \(z = 0\.02 m"),
+    ("kntu_planar", ("0", "0.3", "1"), r"^off the xz plane of this planar robot \(its y must be 0"),
+    ("kntu_planar", ("0", "0", "1", "0.2", "0", "0"), r"^off the xz plane"),
+    ("planar_xy_4", ("0", "0", "0.5"), r"^off the xy plane"),
+])
+def test_ik_flags_a_pose_the_robot_cannot_take(robot: str, pose: tuple[str, ...], problem: str | None) -> None:
+    """`cdpr ik` answers an impossible pose as `cdpr tda` answers an infeasible wrench: the JSON (reachable
+    false, the problems) and exit code 3, with the problems on one line of stderr."""
+    proc = cdpr_here("ik", robot, "--pose", *pose)
+    out = json.loads(proc.stdout)
+    if problem is None:
+        assert (proc.returncode, out["reachable"], proc.stderr) == (0, True, ""), proc.stderr
+        return
+    assert proc.returncode == 3, proc.stderr
+    assert out["reachable"] is False
+    assert any(re.search(problem, p) for p in out["problems"]), out["problems"]
+    assert proc.stderr.startswith("cdpr ik: the robot cannot take this pose: ")
+    assert len(proc.stderr.strip().splitlines()) == 1
 
 
 @pytest.mark.parametrize("method", ["qp", "closed-form", "improved-closed-form", "continuity"])

@@ -301,3 +301,76 @@ def test_cli_rejects_invalid_robot_with_exit_2_and_one_line(path: Path, prefix: 
     assert len(lines) == 1, proc.stderr
     assert prefix in lines[0]
     assert fragment in lines[0]
+
+
+def _caroca_with(tmp_path: Path, name: str, **changes: object) -> Path:
+    import yaml
+
+    spec = yaml.safe_load((resources.files("cdpr") / "robots" / "caroca.yaml").read_text(encoding="utf-8"))
+    for key, value in changes.items():
+        where = spec
+        *parents, last = key.split("__")
+        for p in parents:
+            where = where[p]
+        where[last] = value
+    path = tmp_path / f"{name}.yaml"
+    path.write_text(yaml.safe_dump(spec, sort_keys=False), encoding="utf-8")
+    return path
+
+
+def test_a_home_the_cables_cannot_hold_is_explained_and_a_held_one_found(tmp_path: Path) -> None:
+    """CAROCA's geometry with its home in a corner of the frame: a session (and `cdpr robots FILE`) refuses the
+    file, naming the wrench no pulling produces there and the cables that would have to push, and the way
+    forward; the analysis tools take the file (saying a session would not); `cdpr robots FILE --find-home` gives
+    a held home nearby, with which the file loads."""
+    import json
+
+    import yaml
+
+    from conftest import cdpr_here
+
+    path = _caroca_with(tmp_path, "corner", home={"position": [3.5, 2.0, 0.3], "rpy": [0.0, 0.0, 0.0]})
+    with pytest.raises(InputError) as err:
+        load_robot(path)
+    message = str(err.value)
+    assert message.startswith(f"{path}: home: no tensions in [50, 10000] N (limits.tmin, limits.tmax) hold the 150 kg "
+                              "platform at rest at the home pose (position [3.5, 2, 0.3] m, rpy [0, 0, 0] rad): "
+                              "pulling alone cannot: the wrench fx ")
+    assert "would have to push" in message
+    assert message.endswith(f"`cdpr robots {path} --find-home` finds a pose they hold (cdpr ik, tda and workspace "
+                            "take this file)")
+    for command in (("ik", str(path), "--pose", "0.9", "0.9", "1"), ("tda", str(path), "--pose", "0.9", "0.9", "1",
+                                                                     "--static"),
+                    ("workspace", str(path), "--step", "1.0")):
+        proc = cdpr_here(*command)
+        assert proc.returncode == 0, (command, proc.stderr)
+        assert proc.stderr.strip().splitlines() == [f"cdpr: warning: {message} (a session would refuse this robot)"]
+    refused = cdpr_here("robots", str(path))
+    assert (refused.returncode, refused.stderr.strip()) == (2, f"cdpr: error: {message}")
+    found = cdpr_here("robots", str(path), "--find-home")
+    assert found.returncode == 0, found.stderr
+    out = json.loads(found.stdout)
+    assert out["home_held"] is False
+    assert 0.0 < out["moved"] < 1.0  # near the corner the file gives
+    spec = yaml.safe_load(path.read_text(encoding="utf-8"))
+    spec["home"] = out["found"]
+    path.write_text(yaml.safe_dump(spec, sort_keys=False), encoding="utf-8")
+    held = load_robot(path)  # loads now: the cables hold it there
+    assert np.allclose(held.home_position, out["found"]["position"])
+
+
+def test_limits_too_low_anywhere_say_which_cables_would_pull_harder(tmp_path: Path) -> None:
+    import json
+
+    from conftest import cdpr_here
+
+    path = _caroca_with(tmp_path, "weak", limits__tmax=150.0)
+    with pytest.raises(InputError, match=r"the cables would have to pull harder than their tmax: cable \d+ \d+ N > "
+                                         r"150 N"):
+        load_robot(path)
+    none = cdpr_here("robots", str(path), "--find-home")
+    assert none.returncode == 3  # as cdpr tda: no held pose exists
+    assert json.loads(none.stdout)["found"] is None
+    assert none.stderr.strip().splitlines()[-1].startswith(
+        "cdpr robots --find-home: no position in the frame box holds the platform at its home orientation: the "
+        "cables would have to pull harder than their tmax")

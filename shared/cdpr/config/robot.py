@@ -24,7 +24,7 @@ from cdpr.mechanics.kinematics import check_robot
 from cdpr.mechanics.pulley import Pulleys
 from cdpr.mechanics.robot import Mode, Plane, Robot, Shape, frozen_array
 from cdpr.mechanics.rotation import rpy_to_matrix
-from cdpr.mechanics.workspace import wrench_feasible
+from cdpr.mechanics.workspace import why_not_held, wrench_feasible
 
 Vec3 = Annotated[list[FiniteFloat], Field(min_length=3, max_length=3)]
 
@@ -189,8 +189,10 @@ class RobotSpec(Strict):
         return [default if (v := getattr(c, name)) is None else v for c in self.cables]
 
 
-def robot_from_spec(spec: RobotSpec, where: str) -> Robot:
-    """Build and check a Robot; ``where`` names the file in errors."""
+def robot_from_spec(spec: RobotSpec, where: str, check_home: bool = True) -> Robot:
+    """Build and check a Robot; ``where`` names the file in errors. ``check_home``: also that tensions within the
+    limits hold the platform at its home pose (a session's robot; the tools that analyse a robot take one whose
+    home is not held, and say so: :func:`home_problem`)."""
     inertia = np.asarray(spec.platform.inertia, dtype=float)
     if inertia.shape == ():  # a planar robot's one moment: the other axes cannot turn, any positive moment serves
         inertia = np.eye(3) * inertia
@@ -231,7 +233,8 @@ def robot_from_spec(spec: RobotSpec, where: str) -> Robot:
         pulleys=_pulleys(spec.cables),
     )
     check_robot(robot, where)
-    check_home_held(robot, where, spec.home.position, spec.home.rpy)
+    if check_home and (problem := home_problem(robot, where, spec.home.position, spec.home.rpy)) is not None:
+        raise InputError(problem)
     return robot
 
 
@@ -244,29 +247,31 @@ def _pulleys(cables: list[CableSpec]) -> Pulleys | None:
     return Pulleys(frozen_array(radius), frozen_array(axis / np.linalg.norm(axis, axis=1, keepdims=True)))
 
 
-def check_home_held(robot: Robot, where: str, position: list[float], rpy: list[float]) -> None:
-    """An :class:`InputError` unless tensions within the robot's limits hold its platform at rest at its home pose
-    (the pose every session starts from)."""
+def home_problem(robot: Robot, where: str, position: list[float], rpy: list[float]) -> str | None:
+    """None when tensions within the robot's limits hold its platform at rest at its home pose (the robot's
+    reference pose: ``cdpr show``'s, a session's check that its robot can be held); else why not, which cables,
+    and the way forward, in one line."""
     if wrench_feasible(robot, robot.home_position[None, :], robot.home_rotation)[0]:
-        return
+        return None
     pos = ", ".join(f"{x:g}" for x in position)  # as the file gives it (the platform frame's)
     angles = ", ".join(f"{x:g}" for x in rpy)
     which = "limits.tmin, limits.tmax" if robot.uniform_limits else "per cable: cables.i.tmin/tmax, else limits"
-    raise InputError(
-        f"{where}: home: no tensions in {robot.tension_limits_text()} ({which}) hold the "
-        f"{robot.mass:g} kg platform at rest at the home pose (position [{pos}] m, rpy [{angles}] rad): "
-        "move home into the workspace (cdpr workspace) or widen the limits"
-    )
+    why = why_not_held(robot, robot.home_position, robot.home_rotation)
+    return (f"{where}: home: no tensions in {robot.tension_limits_text()} ({which}) hold the {robot.mass:g} kg "
+            f"platform at rest at the home pose (position [{pos}] m, rpy [{angles}] rad): {why}; "
+            f"`cdpr robots {where} --find-home` finds a pose they hold (cdpr ik, tda and workspace take this file)")
 
 
-def load_robot(name_or_path: str | Path, cable_set: str | None = None) -> Robot:
+def load_robot(name_or_path: str | Path, cable_set: str | None = None, check_home: bool = True) -> Robot:
     """A shipped robot name (``caroca``) or a path to a robot YAML file → a validated Robot, with its cable set
-    ``cable_set`` (None: the file's ``cables``). Every set of the file is checked."""
+    ``cable_set`` (None: the file's ``cables``). Every set of the file is checked (``check_home``: their home
+    poses held too)."""
     path = resolve(name_or_path, "robots", "robot")
-    return robot_from_data(read_yaml(path), path, cable_set)
+    return robot_from_data(read_yaml(path), path, cable_set, check_home)
 
 
-def robot_from_data(data: dict[str, Any], where: str | Path, cable_set: str | None = None) -> Robot:
+def robot_from_data(data: dict[str, Any], where: str | Path, cable_set: str | None = None,
+                    check_home: bool = True) -> Robot:
     """A robot file's content → the Robot of its cable set ``cable_set`` (None: its ``cables``), every set of
     it checked; errors start with ``where``."""
     spec = parse_model(RobotSpec, data, where)
@@ -276,9 +281,18 @@ def robot_from_data(data: dict[str, Any], where: str | Path, cable_set: str | No
         raise InputError(f"{where}: {exc}") from None
     for name in spec.set_names():
         if name != chosen.cable_set:
-            robot_from_spec(spec.with_cable_set(name), f"{where}: cable_sets.{name}")
+            robot_from_spec(spec.with_cable_set(name), f"{where}: cable_sets.{name}", check_home)
     place = str(where) if chosen.cable_set == spec.cable_set else f"{where}: cable_sets.{chosen.cable_set}"
-    return robot_from_spec(chosen, place)
+    return robot_from_spec(chosen, place, check_home)
+
+
+def home_held_problem(robot: Robot, where: str | Path) -> str | None:
+    """:func:`home_problem` of a loaded robot (its home as the file gives it: the platform frame's pose)."""
+    from cdpr.mechanics.rotation import matrix_to_rpy
+
+    R = robot.home_rotation
+    position = (robot.home_position - R @ robot.com_offset).tolist()
+    return home_problem(robot, str(where), position, list(matrix_to_rpy(R)))
 
 
 def shipped_robots() -> list[str]:

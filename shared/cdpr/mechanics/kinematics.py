@@ -217,3 +217,33 @@ def check_robot(robot: Robot, where: str) -> None:
             f"{where}: cables: the wrench matrix has rank {rank} < {robot.dof} at the home pose "
             "(the cables cannot hold the platform there)"
         )
+
+
+def pose_problems(robot: Robot, position: ArrayLike, R: ArrayLike | None = None, tol: float = 1e-9) -> list[str]:
+    """Why a pose of the platform (its centre of mass at ``position``, orientation ``R``) is not one the robot
+    can take, one phrase each (none: it can): a cable longer than its ``max_length``; the platform frame's origin
+    below the floor (the frame box's bottom) or else outside the frame box; for a planar robot, a pose off its
+    plane (a coordinate along the plane's normal, or a rotation about another axis). Wrench feasibility is
+    another question (cdpr tda)."""
+    p = np.asarray(position, dtype=float)
+    Rm = np.eye(3) if R is None else np.asarray(R, dtype=float)
+    lengths = inverse_kinematics(robot, p, Rm).lengths
+    out = []
+    if (over := np.flatnonzero(lengths > robot.max_length + tol)).size:
+        out.append("beyond max_length: " + ", ".join(f"cable {i + 1} {lengths[i]:.4g} m > {robot.max_length[i]:g} m"
+                                                     for i in over))
+    origin = p - Rm @ robot.com_offset  # the platform frame's origin (what --pose gives)
+    lo, hi = np.asarray(robot.frame_min), np.asarray(robot.frame_max)
+    where = f"the platform at [{', '.join(f'{x:.6g}' for x in origin)}] m"
+    if origin[2] < lo[2] - tol:
+        out.append(f"{where} is below the floor (z = {lo[2]:g} m, the frame box's bottom)")
+    elif np.any(origin < lo - tol) or np.any(origin > hi + tol):
+        out.append(f"{where} is outside the frame box [{', '.join(f'{x:g}' for x in lo)}] … "
+                   f"[{', '.join(f'{x:g}' for x in hi)}] m")
+    if robot.mode == "planar":
+        n = robot.normal_axis
+        axis = np.eye(3)[n]
+        if abs(p[n]) > tol or not np.allclose(Rm @ axis, axis, atol=1e-9):
+            out.append(f"off the {robot.plane} plane of this planar robot (its {'xyz'[n]} must be 0 and its only "
+                       f"rotation about {'xyz'[n]})")
+    return out

@@ -63,6 +63,13 @@ def rpy_to_matrix(roll: float, pitch: float, yaw: float) -> Array:
     )
 
 
+def matrix_to_rpy(R: ArrayLike) -> tuple[float, float, float]:
+    """(roll, pitch, yaw) of R = Rz(yaw)·Ry(pitch)·Rx(roll) (:func:`rpy_to_matrix`), pitch in [−π/2, π/2]."""
+    m = np.asarray(R, dtype=float)
+    pitch = float(np.arcsin(np.clip(-m[2, 0], -1.0, 1.0)))
+    return float(np.arctan2(m[2, 1], m[2, 2])), pitch, float(np.arctan2(m[1, 0], m[0, 0]))
+
+
 def euler_xyz_to_matrix(a: float, b: float, c: float) -> Array:
     """Euler XYZ (intrinsic x, then y, then z; CASPR's convention): R = Rx(a) · Ry(b) · Rz(c)."""
     ca, sa = np.cos(a), np.sin(a)

@@ -339,3 +339,52 @@ def check_trajectory(robot: Robot, trajectory: Trajectory, variant: Variant, whe
         f"{where}: trajectory: leaves the wrench-feasible workspace at t = {v.t:.2f} s (position [{pos}]): "
         f"no tensions in {robot.tension_limits_text()} {what}"
     )
+
+
+def why_not_held(robot: Robot, position: ArrayLike, R: ArrayLike | None = None) -> str:
+    """Why no tensions within the limits hold the platform at rest at this pose, in words a robot file's author
+    can act on: the cables that would need more than their ``tmax`` (when pulling harder would do), or else the
+    cables that would have to push and the wrench no pulling produces here (the least-squares tensions that
+    pull at least ``tmin`` leave it unmet)."""
+    from scipy.optimize import lsq_linear
+
+    rows = list(robot.controlled_rows)
+    W = wrench_matrices(robot, np.asarray(position, dtype=float)[None, :], R)[0][rows, :]
+    w = static_wrench(robot, tuple(rows))
+    scale = float(np.max(np.abs(w))) or 1.0
+    pulled = lsq_linear(W, w, bounds=(robot.tmin, np.inf), method="bvls")
+    unmet = W @ pulled.x - w
+    if np.linalg.norm(unmet) <= 1e-6 * scale:  # pulling harder holds it: the limits are what is short
+        over = np.flatnonzero(pulled.x > robot.tmax * (1 + 1e-9))
+        return ("the cables would have to pull harder than their tmax: " + ", ".join(
+            f"cable {i + 1} {pulled.x[i]:.0f} N > {robot.tmax[i]:g} N" for i in over))
+    names = ("fx", "fy", "fz", "mx", "my", "mz")
+    slack = [i + 1 for i in np.flatnonzero(pulled.x <= robot.tmin + 1e-9 * scale)]
+    wrench = ", ".join(f"{names[r]} {-u:+.4g}" for r, u in zip(rows, unmet, strict=True) if abs(u) > 1e-6 * scale)
+    return (f"pulling alone cannot: the wrench {wrench} (N, N·m) is missing"
+            + (f", and cable(s) {', '.join(map(str, slack))} would have to push" if slack else ""))
+
+
+def find_held_pose(robot: Robot, near: ArrayLike, R: ArrayLike | None = None, step: float | None = None
+                   ) -> Array | None:
+    """The centre-of-mass position nearest ``near`` at which tensions within the limits hold the platform at rest
+    with orientation ``R`` (on a grid over the frame box, refined once around the best point); None when none
+    is."""
+    lo, hi = np.asarray(robot.frame_min), np.asarray(robot.frame_max)
+    coarse = step if step is not None else float(np.max(hi - lo)) / 20
+    best: Array | None = None
+    target = np.asarray(near, dtype=float)
+    for h, box in ((coarse, (lo, hi)), (coarse / 10, None)):
+        if box is None:
+            if best is None:
+                return None
+            box = (np.maximum(lo, best - coarse), np.minimum(hi, best + coarse))
+        axes = [np.arange(a, b + 1e-12, h) if b - a > 1e-12 else np.array([a]) for a, b in zip(*box, strict=True)]
+        if robot.mode == "planar":  # its points stay in its plane
+            axes[robot.normal_axis] = np.array([0.0])
+        pts = np.stack(np.meshgrid(*axes, indexing="ij"), axis=-1).reshape(-1, 3)
+        ok = wrench_feasible(robot, pts, R)
+        if ok.any():
+            good = pts[ok]
+            best = good[int(np.argmin(np.linalg.norm(good - target, axis=1)))]
+    return best

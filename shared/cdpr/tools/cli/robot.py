@@ -10,6 +10,7 @@ import click
 import numpy as np
 
 from cdpr.errors import InputError
+from cdpr.mechanics.robot import Robot
 from cdpr.tools.cli.group import cli, emit
 
 # ------------------------------------------------------------------------------------------------
@@ -18,22 +19,65 @@ from cdpr.tools.cli.group import cli, emit
 INFEASIBLE_EXIT = 3  # cdpr tda: no admissible tensions produce the wrench (documented in README)
 
 
+def analysed_robot(robot: str, cable_set: str | None) -> Robot:
+    """ROBOT for a tool that analyses it (ik, tda, workspace): loaded whether or not tensions hold its
+    platform at its home pose — a session would refuse it, and a line on stderr says so and why."""
+    from cdpr.config.loading import resolve
+    from cdpr.config.robot import home_held_problem, load_robot
+
+    r = load_robot(robot, cable_set, check_home=False)
+    if (problem := home_held_problem(r, resolve(robot, "robots", "robot"))) is not None:
+        click.echo(f"cdpr: warning: {problem} (a session would refuse this robot)", err=True)
+    return r
+
+
 @cli.command()
 @click.argument("robot", required=False)
 @click.option("--cable-set", "cable_set", default=None, metavar="NAME",
               help="which of the robot file's cable sets (default: its cables)")
-def robots(robot: str | None, cable_set: str | None) -> None:
-    """List the shipped robots, or print the summary of ROBOT (a name or a YAML path)."""
+@click.option("--find-home", is_flag=True,
+              help="the pose nearest the file's home at which tensions within the limits hold the platform at rest "
+                   "(its home orientation), as a line to put in the file")
+def robots(robot: str | None, cable_set: str | None, find_home: bool) -> None:
+    """List the shipped robots, or print the summary of ROBOT (a name or a YAML path). Exit code 3 when
+    --find-home finds no such pose."""
     from cdpr.config.robot import load_robot, shipped_robots
 
     if robot is None:
+        if find_home:
+            raise InputError("--find-home: give the ROBOT whose home to find")
         out = []
         for name in shipped_robots():
             r = load_robot(name)
             out.append({"name": name, "mode": r.mode, "cables": r.m, "mass": r.mass, "description": r.description})
         emit(out)
-    else:
+    elif find_home:
+        from cdpr.mechanics.rotation import matrix_to_rpy
+        from cdpr.mechanics.workspace import find_held_pose, wrench_feasible
+
+        r = load_robot(robot, cable_set, check_home=False)
+        R = r.home_rotation
+        held = bool(wrench_feasible(r, r.home_position[None, :], R)[0])
+        found = r.home_position if held else find_held_pose(r, r.home_position, R)
+        if found is None:
+            emit({"robot": r.name, "home_held": False, "found": None})
+            click.echo(f"cdpr robots --find-home: no position in the frame box holds the platform at its home "
+                       f"orientation: {why_not_held_text(r)}", err=True)
+            sys.exit(INFEASIBLE_EXIT)
+        position = [round(float(x), 9) + 0.0 for x in found - R @ r.com_offset]  # the platform frame's, as the file
+        rpy = [round(x, 12) + 0.0 for x in matrix_to_rpy(R)]
+        emit({"robot": r.name, "home_held": held, "found": {"position": position, "rpy": rpy},
+              "moved": float(np.linalg.norm(found - r.home_position))})
+        if not held:
+            click.echo(f"home: {{position: {position}, rpy: {rpy}}}   # held: put this in the robot file", err=True)
+    else:  # the file checked as a session would (exit 2 with the loader's line, --find-home's way forward in it)
         emit(load_robot(robot, cable_set).summary())
+
+
+def why_not_held_text(r: Robot) -> str:
+    from cdpr.mechanics.workspace import why_not_held
+
+    return why_not_held(r, r.home_position, r.home_rotation)
 
 
 _ANGLES_HELP = ("the convention of three angles, rad: rpy = roll pitch yaw, R = Rz(yaw)·Ry(pitch)·Rx(roll) (ROS/URDF); "
@@ -94,18 +138,27 @@ def _pose(values: tuple[float, ...], angles: str = "rpy") -> tuple[np.ndarray, n
 @_cable_set_option()
 @click.pass_context
 def ik(ctx: click.Context, robot: str, angles: str, cable_set: str | None) -> None:
-    """Inverse kinematics of ROBOT at --pose X Y Z [A B C]: cable lengths, directions, wrench matrix (JSON)."""
-    from cdpr.config.robot import load_robot
-    from cdpr.mechanics.kinematics import inverse_kinematics
+    """Inverse kinematics of ROBOT at --pose X Y Z [A B C]: cable lengths, directions, wrench matrix (JSON).
+
+    Exit code 3 when the robot cannot take the pose (a cable beyond its max_length, the platform outside the
+    frame box or below its floor, a planar robot off its plane: the JSON is still printed, reachable false and
+    the problems), 2 for bad input.
+    """
+    from cdpr.mechanics.kinematics import inverse_kinematics, pose_problems
 
     groups = _split_numbers(list(ctx.args), ("--pose",))
     if "--pose" not in groups:
         raise InputError("--pose X Y Z [A B C] is required")
-    r = load_robot(robot, cable_set)
+    r = analysed_robot(robot, cable_set)
     position, R = _pose(_numbers("--pose", tuple(groups["--pose"])), angles)
-    k = inverse_kinematics(r, r.com_pose(position, R), R)
+    com = r.com_pose(position, R)
+    k = inverse_kinematics(r, com, R)
+    problems = pose_problems(r, com, R)
     emit({"lengths": k.lengths.tolist(), "directions": k.directions.tolist(),
-           "wrench_matrix": k.wrench_matrix.tolist()})
+          "wrench_matrix": k.wrench_matrix.tolist(), "reachable": not problems, "problems": problems})
+    if problems:
+        click.echo(f"cdpr ik: the robot cannot take this pose: {'; '.join(problems)}", err=True)
+        sys.exit(3)
 
 
 def _numbers(flag: str, raw: tuple[Any, ...]) -> tuple[float, ...]:
@@ -152,7 +205,6 @@ def tda(ctx: click.Context, robot: str, angles: str, static: bool, payload: floa
     admissible tensions do (the JSON is still printed: feasible false, the nearest admissible tensions and
     their residual), 2 for bad input.
     """
-    from cdpr.config.robot import load_robot
     from cdpr.mechanics.dynamics import gravity_wrench
     from cdpr.mechanics.kinematics import inverse_kinematics
     from cdpr.mechanics.tda import METHODS, make_tda
@@ -164,7 +216,7 @@ def tda(ctx: click.Context, robot: str, angles: str, static: bool, payload: floa
         raise InputError("give exactly one of --static or --wrench FX FY FZ MX MY MZ")
     if method not in METHODS:
         raise InputError(f"--method: unknown method {method!r} (known: {', '.join(sorted(METHODS))})")
-    r = load_robot(robot, cable_set).with_payload(payload)
+    r = analysed_robot(robot, cable_set).with_payload(payload)
     lo, hi = _limits(r, tmin, tmax)
     position, R = _pose(_numbers("--pose", tuple(groups["--pose"])), angles)
     rows = list(r.controlled_rows)
@@ -233,12 +285,11 @@ def workspace(robot: str, payload: float, mass: float | None, step: float,
     """Static wrench-feasible workspace of ROBOT on a grid over its frame box (JSON; points to Rerun)."""
     import time
 
-    from cdpr.config.robot import load_robot
     from cdpr.mechanics.rotation import angles_to_matrix
     from cdpr.mechanics.workspace import compute_workspace
     from cdpr.recording.workspace import record_workspace
 
-    r = load_robot(robot, cable_set)
+    r = analysed_robot(robot, cable_set)
     r = (r if mass is None else r.with_mass(mass)).with_payload(payload)
     lo, hi = _limits(r, tmin, tmax)
     if not (np.isfinite(step) and step > 0):
@@ -308,71 +359,34 @@ def import_robot() -> None:
 
 @import_robot.command("caspr")
 @click.argument("files", nargs=-1, required=True, type=click.Path(path_type=Path))
+@click.option("--model", "model", default=None, metavar="NAME",
+              help="of a folder holding several models (NAME_bodies.xml, NAME_cables.xml), import NAME only "
+                   "(default: every one, a robot file each)")
 @click.option("--cable-set", "cable_set", default=None, metavar="ID",
               help="the set that becomes the file's cables (default: the model's default_cable_set); the others "
                    "are kept as cable_sets")
 @click.option("--name", default=None, help="the robot's name (default: the model's link name, as a slug)")
 @click.option("--home", type=float, nargs=3, default=None, metavar="X Y Z",
-              help="the COM's home position, m (default: CASPR's q_initial; its orientation is kept)")
-@click.option("-o", "--output", default=None, help="robot file to write (default: NAME.yaml; - for stdout)")
-def import_caspr(files: tuple[Path, ...], cable_set: str | None, name: str | None,
+              help="the platform frame's home position (CASPR's joint frame), m (default: CASPR's q_initial; its "
+                   "orientation is kept)")
+@click.option("-o", "--output", default=None,
+              help="robot file to write, or a folder for them (default: NAME.yaml; - for stdout)")
+def import_caspr(files: tuple[Path, ...], model: str | None, cable_set: str | None, name: str | None,
                  home: tuple[float, float, float] | None, output: str | None) -> None:
-    """Import a single-rigid-body CASPR model: FILES are its BODIES.xml and CABLES.xml, or its model folder.
+    """Import a single-rigid-body CASPR model: FILES are its BODIES.xml and CABLES.xml (either order), or its
+    model folder (a folder of several models: a robot file each, or --model NAME).
 
-    Writes the robot file (attachment points from the centre of mass, mass, inertia, per-cable force limits,
-    every cable set) and names in it what CASPR does not give and the import chose (shape, frame box,
-    max_length, max_speed). The file is loaded as every robot is before it is written: a model whose home
-    pose its cables cannot hold is refused with the reason.
+    Writes the robot file (the platform frame: CASPR's joint frame, platform.com the COM in it; mass, inertia,
+    per-cable force limits, rotating pulleys as exit pulleys, every cable set) and names in it what CASPR does
+    not give and the import chose (shape, frame box, max_length, max_speed). The file is loaded as every robot
+    is before it is written: a model whose home pose its cables cannot hold is refused with the reason.
     """
-    import yaml
+    from cdpr.tools.caspr import import_caspr as run_import
 
-    from cdpr.config.robot import robot_from_data
-    from cdpr.tools.caspr import find_files, read_model, robot_data
-
-    bodies, cables = find_files(list(files))
-    model = read_model(bodies, cables, cable_set)
-    if home is not None:
-        if not all(np.isfinite(home)):
-            raise InputError("--home: X, Y and Z must be finite")
-        model.notes.append(f"home: {list(home)} given on the command line (CASPR's q_initial puts the COM at "
-                           f"{model.home})")
-        model.home = [float(x) for x in home]
-    origin = f"{bodies.name} + {cables.name}" if bodies.parent == cables.parent else f"{bodies} + {cables}"
-    data = robot_data(model, name, origin)
-    try:
-        robot = robot_from_data(data, f"{data['name']} (imported from {origin})")
-    except InputError as exc:
-        hint = " (--home X Y Z chooses another home position)" if ": home: " in str(exc) else ""
-        raise InputError(f"{exc}{hint}") from None
-    text = _robot_yaml(data, origin, yaml)
-    path = output or f"{data['name']}.yaml"
-    if output == "-":
+    reports, text = run_import(list(files), model, cable_set, name, home, output)
+    if text is not None:
         click.echo(text, nl=False)
-        return
-    try:
-        Path(path).write_text(text, encoding="utf-8")
-    except OSError as exc:
-        raise InputError(f"-o: cannot write {path}: {exc.strerror or exc}") from None
-    emit({"robot": robot.name, "file": path, "mode": robot.mode, "cables": robot.m,
-          "cable_set": robot.cable_set, "cable_sets": [model.default_set, *data.get("cable_sets", {})],
-          "notes": model.notes})
-
-
-def _robot_yaml(data: dict[str, Any], origin: str, yaml: Any) -> str:
-    """The robot file's text: a header naming the import, short lists (points, limits) on one line."""
-
-    class Dumper(yaml.SafeDumper):
-        pass
-
-    def short_list(dumper: Any, value: list[Any]) -> Any:
-        flow = all(isinstance(v, int | float) for v in value)
-        return dumper.represent_sequence("tag:yaml.org,2002:seq", value, flow_style=flow)
-
-    def small_map(dumper: Any, value: dict[str, Any]) -> Any:
-        flow = "frame" in value and "platform" in value  # a cable: one line
-        return dumper.represent_mapping("tag:yaml.org,2002:map", value, flow_style=flow)
-
-    Dumper.add_representer(list, short_list)
-    Dumper.add_representer(dict, small_map)
-    body = yaml.dump(data, Dumper=Dumper, sort_keys=False, allow_unicode=True, width=110)
-    return f"# Imported from CASPR ({origin}) by `cdpr import caspr`: what it assumed is in `source`.\n{body}"
+    elif len(reports) == 1:
+        emit(reports[0])
+    else:
+        emit({"models": [r["model"] for r in reports], "robots": reports})
