@@ -78,15 +78,15 @@ class MarkersSpec(Strict):
 
 class CameraSpec(Strict):
     name: str = Field(pattern=r"^[A-Za-z0-9_]{1,32}$", description="its topic is sim/camera/<name>")
-    mount: MountSpec
-    intrinsics: IntrinsicsSpec
+    mount: MountSpec = Field(description="where it is, and where it looks")
+    intrinsics: IntrinsicsSpec = Field(description="the pinhole model (OpenCV's K)")
     distortion: list[FiniteFloat] = Field(default_factory=lambda: [0.0] * 5, min_length=5, max_length=5,
                                           description="plumb_bob: k1, k2, t1, t2, k3 (OpenCV's order)")
     rate: PositiveFloat = Field(description="frames per second (a frame every round(1 / (rate dt)) steps)")
     pixel_sigma: FiniteFloat = Field(0.0, ge=0.0, description="white noise on each pixel coordinate")
     dropout: FiniteFloat = Field(0.0, ge=0.0, lt=1.0, description="probability that a marker in view is missed")
     latency_steps: int = Field(0, ge=0, le=10_000, description="steps from a frame's exposure to its measurement")
-    markers: MarkersSpec
+    markers: MarkersSpec = Field(description="the points it measures")
     image: bool = Field(False, description="also render an RGB image of each frame")
 
     def every(self, dt: float) -> int:

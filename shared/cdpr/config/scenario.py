@@ -30,7 +30,7 @@ from cdpr.mechanics.camera import Camera
 from cdpr.mechanics.control import Gains, Variant
 from cdpr.mechanics.outputs import CommandKind
 from cdpr.mechanics.robot import GRAVITY, Robot
-from cdpr.mechanics.rotation import rpy_to_matrix
+from cdpr.mechanics.rotation import matrix_to_rotvec, rpy_to_matrix
 from cdpr.mechanics.trajectory import PlatformPoint, Trajectory
 
 
@@ -47,9 +47,16 @@ class LimitsOverride(Strict):
     tmax: PositiveFloat | None = Field(None, description="N, for every cable")
 
 
+def _tda_methods() -> str:
+    from cdpr.mechanics.tda import METHOD_NAMES
+
+    return ", ".join(sorted(METHOD_NAMES))
+
+
 class TdaSpec(Strict):
-    method: str = "qp"
-    options: dict[str, Any] = Field(default_factory=dict)
+    method: str = Field("qp", description=f"the tension distribution: {_tda_methods()}")
+    options: dict[str, Any] = Field(default_factory=dict, description="the method's options (e.g. qp: solver, "
+                                    "exact, atol; docs/protocol.md's TDA section)")
 
     @field_validator("method")
     @classmethod
@@ -65,8 +72,9 @@ Gain = FiniteFloat | list[FiniteFloat]
 
 
 class GoalSpec(Strict):
-    position: list[FiniteFloat] = Field(min_length=3, max_length=3)
-    rpy: list[FiniteFloat] = Field(default_factory=lambda: [0.0, 0.0, 0.0], min_length=3, max_length=3)
+    position: list[FiniteFloat] = Field(min_length=3, max_length=3, description="the platform frame's origin, m")
+    rpy: list[FiniteFloat] = Field(default_factory=lambda: [0.0, 0.0, 0.0], min_length=3, max_length=3,
+                                   description="roll, pitch, yaw, rad")
 
 
 class IbvsSpec(Strict):
@@ -86,11 +94,12 @@ class ControllerSpec(Strict):
     law: Literal["feedback_linearisation", "ibvs"] = Field(
         "feedback_linearisation", description="feedback_linearisation (eq. 6–7, the setpoints) or ibvs (image-based "
         "visual servoing: a camera's features only)")
-    ibvs: IbvsSpec | None = None
-    variant: Literal["6dof", "3dof"] = "6dof"
-    kp: Gain = 1500.0
-    kd: Gain = 1500.0
-    tda: TdaSpec = Field(default_factory=TdaSpec)
+    ibvs: IbvsSpec | None = Field(None, description="law ibvs: its camera and gains")
+    variant: Literal["6dof", "3dof"] = Field("6dof", description="6dof: position and orientation (eq. 7); 3dof: "
+                                             "position only, the paper's variant")
+    kp: Gain = Field(1500.0, description="proportional gain, 1/s²: one number, or [x, y, z, rx, ry, rz]")
+    kd: Gain = Field(1500.0, description="derivative gain, 1/s: one number, or [x, y, z, rx, ry, rz]")
+    tda: TdaSpec = Field(default_factory=TdaSpec, description="how the wrench becomes cable tensions (eq. 8)")
     output: CommandKind = Field(
         "tensions",
         description="what the controller commands: cable tensions, or unstretched cable lengths (winch "
@@ -174,9 +183,10 @@ class SensorsSpec(Strict):
     """Simulated sensors, published on sim/sensors (cdpr_sim.sensors)."""
 
     seed: int = Field(0, ge=0, description="seed of the noise (a reading is a function of seed and step)")
-    encoders: EncoderSpec = Field(default_factory=lambda: EncoderSpec())
-    load_cells: LoadCellSpec = Field(default_factory=lambda: LoadCellSpec())
-    imu: ImuSpec = Field(default_factory=lambda: ImuSpec())
+    encoders: EncoderSpec = Field(default_factory=lambda: EncoderSpec(), description="the winches' cable lengths")
+    load_cells: LoadCellSpec = Field(default_factory=lambda: LoadCellSpec(), description="the cables' tensions")
+    imu: ImuSpec = Field(default_factory=lambda: ImuSpec(), description="the platform's specific force and angular "
+                         "rate, body frame")
 
 
 WatchdogPolicy = Literal["hold", "static", "abort"]
@@ -231,9 +241,10 @@ class SimSpec(Strict):
     cable_model: str = Field(
         "ideal", description="; ".join(f"{name}: {model.description}" for name, model in CABLE_MODELS.items())
     )
-    elastic: ElasticSpec = Field(default_factory=lambda: ElasticSpec())
-    sag: SagSpec = Field(default_factory=lambda: SagSpec())
-    winch: WinchSpec = Field(default_factory=lambda: WinchSpec())
+    elastic: ElasticSpec = Field(default_factory=lambda: ElasticSpec(), description="cable_model elastic: its cables")
+    sag: SagSpec = Field(default_factory=lambda: SagSpec(), description="cable_model sag: its cables")
+    winch: WinchSpec = Field(default_factory=lambda: WinchSpec(), description="the winches of cable_model elastic or "
+                             "sag")
     substeps: int | None = Field(None, ge=1, description="sub-steps per dt in lengths mode (default: chosen "
                                  "for stability and accuracy from the cables' stiffness)")
     sensors: SensorsSpec | None = Field(None, description="publish simulated sensor readings on sim/sensors")
@@ -279,23 +290,31 @@ class SimSpec(Strict):
 
 
 class InitialSpec(Strict):
-    position: list[FiniteFloat] = Field(min_length=3, max_length=3)
-    rpy: list[FiniteFloat] = Field(default_factory=lambda: [0.0, 0.0, 0.0], min_length=3, max_length=3)
+    position: list[FiniteFloat] = Field(min_length=3, max_length=3, description="the platform frame's origin, "
+                                        "world frame, m")
+    rpy: list[FiniteFloat] = Field(default_factory=lambda: [0.0, 0.0, 0.0], min_length=3, max_length=3,
+                                   description="roll, pitch, yaw, rad")
 
 
 class ScenarioSpec(Strict):
-    name: str
-    description: str = ""
-    robot: str
+    name: str = Field(description="the scenario's name (summaries, recordings)")
+    description: str = Field("", description="what it is, in a sentence or two")
+    robot: str = Field(description="a shipped robot's name (cdpr robots) or a robot file's path, relative to the "
+                       "scenario's folder")
     cable_set: str | None = Field(None, description="which of the robot file's cable sets (default: its cables)")
-    platform: PlatformOverride = Field(default_factory=lambda: PlatformOverride())
-    limits: LimitsOverride = Field(default_factory=lambda: LimitsOverride())
-    dt: PositiveFloat = 0.001
-    duration: PositiveFloat | None = Field(None, description="default: the trajectory's duration plus 1 s")
-    initial: InitialSpec | None = Field(None, description="default: the trajectory's first pose, at rest")
-    trajectory: TrajectorySpec
-    controller: ControllerSpec = Field(default_factory=lambda: ControllerSpec())
-    sim: SimSpec = Field(default_factory=lambda: SimSpec())
+    platform: PlatformOverride = Field(default_factory=lambda: PlatformOverride(), description="the platform's mass "
+                                       "or a payload, instead of the robot file's")
+    limits: LimitsOverride = Field(default_factory=lambda: LimitsOverride(), description="tension limits instead of "
+                                   "the robot file's")
+    dt: PositiveFloat = Field(0.001, description="the step, s (at most 0.1)")
+    duration: PositiveFloat | None = Field(None, description="s; default: the trajectory's duration plus 1 s")
+    initial: InitialSpec | None = Field(None, description="where the session starts, at rest; default: the "
+                                        "trajectory's first pose")
+    trajectory: TrajectorySpec = Field(description="the setpoints: type quintic or scurve")
+    controller: ControllerSpec = Field(default_factory=lambda: ControllerSpec(), description="the control law and "
+                                       "the tension distribution")
+    sim: SimSpec = Field(default_factory=lambda: SimSpec(), description="the plant: cable model, sensors, cameras, "
+                         "watchdog")
 
     @model_validator(mode="after")
     def _dt_sane(self) -> ScenarioSpec:
@@ -357,6 +376,20 @@ class Scenario:
     cable_model: str
     spec: ScenarioSpec
     cameras: tuple[Camera, ...] = ()
+
+    def start_note(self) -> str | None:
+        """None when the session starts at the robot's home pose; else where it starts and why (a scenario starts
+        at ``initial``, else at its trajectory's first pose: docs/scenarios.md), in one line."""
+        r = self.robot
+        moved = float(np.linalg.norm(self.initial_position - r.home_position))
+        turned = float(np.linalg.norm(matrix_to_rotvec(self.initial_rotation @ r.home_rotation.T)))
+        if moved <= 1e-6 and turned <= 1e-6:
+            return None
+        origin = self.initial_position - self.initial_rotation @ r.com_offset  # the platform frame's, as files give it
+        what = "its initial pose" if self.spec.initial is not None else "its trajectory's first pose"
+        return (f"{self.name} starts at {what}, [{', '.join(f'{x:.4g}' for x in origin)}] m, not the robot's home: "
+                f"{moved:.3g} m" + (f" and {turned:.3g} rad" if turned > 1e-6 else "") + " from it (a scenario "
+                "starts at `initial`, else at its trajectory's first pose; docs/scenarios.md)")
 
     @property
     def total_steps(self) -> int:

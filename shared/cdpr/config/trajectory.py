@@ -18,15 +18,16 @@ Vec3 = Annotated[list[FiniteFloat], Field(min_length=3, max_length=3)]
 
 class WaypointSpec(Strict):
     t: FiniteFloat = Field(description="time, s")
-    position: Vec3 = Field(description="centre-of-mass position, world frame, m")
+    position: Vec3 = Field(description="the platform frame's origin (its centre of mass unless the robot's "
+                           "platform.com says otherwise), world frame, m")
     rpy: Vec3 | None = Field(None, description="roll, pitch, yaw (rad); omitted: the previous waypoint's")
 
 
 class QuinticSpec(Strict):
     """``type: quintic``: rest-to-rest quintic segments through ``waypoints``."""
 
-    type: Literal["quintic"]
-    waypoints: list[WaypointSpec] = Field(min_length=2)
+    type: Literal["quintic"] = Field(description="rest-to-rest quintic segments through the waypoints")
+    waypoints: list[WaypointSpec] = Field(min_length=2, description="at least two; times strictly increasing")
 
     @model_validator(mode="after")
     def _increasing(self) -> QuinticSpec:
@@ -48,19 +49,19 @@ class QuinticSpec(Strict):
 class SCurveSpec(Strict):
     """``type: scurve``: lift, travel, lower (see :class:`SCurve`)."""
 
-    type: Literal["scurve"]
-    start: Vec3
-    goal: Vec3
+    type: Literal["scurve"] = Field(description="lift, travel at a height, lower (a pick-and-place path)")
+    start: Vec3 = Field(description="where it starts: the platform frame's origin, world frame, m")
+    goal: Vec3 = Field(description="where it ends, m")
     pass_height: FiniteFloat | Annotated[list[FiniteFloat], Field(min_length=2, max_length=2)] | None = Field(
         None, description="absolute travel z, or [z above start, z above goal]"
     )
     lift_height: FiniteFloat | None = Field(None, ge=0.0, description="travel z relative to the start")
-    t_start: FiniteFloat = 0.0
+    t_start: FiniteFloat = Field(0.0, description="when the lift starts, s")
     times: Annotated[list[FiniteFloat], Field(min_length=3, max_length=3)] = Field(
         description="absolute end times of the lift, travel and lower phases, s"
     )
-    start_rpy: Vec3 | None = None
-    goal_rpy: Vec3 | None = None
+    start_rpy: Vec3 | None = Field(None, description="roll, pitch, yaw at the start, rad (default: none)")
+    goal_rpy: Vec3 | None = Field(None, description="at the goal, rad (default: start_rpy): turned during the travel")
 
     @model_validator(mode="after")
     def _consistent(self) -> SCurveSpec:

@@ -390,6 +390,8 @@ def run_session(scenario: Scenario, opts: RunOptions | None = None) -> int:
         raise InputError(f"--session: {exc}") from None
     if opts.in_process and (opts.without or opts.listen or opts.ros2):
         raise InputError("--in-process: every node runs in this process; --without/--listen/--ros2 need processes")
+    if (note := scenario.start_note()) is not None:  # said even with --quiet: not progress, a fact of the session
+        log("cdpr", note)
     listen_eps = opts.listen_endpoints()
     argv = node_argv(scenario, opts, local_endpoint(listen_eps[0]))
     if opts.rt_priority is not None:

@@ -74,6 +74,36 @@ def robots(robot: str | None, cable_set: str | None, find_home: bool) -> None:
         emit(load_robot(robot, cable_set).summary())
 
 
+@cli.command()
+@click.argument("scenario", required=False)
+@click.option("--reference", is_flag=True,
+              help="every key a scenario file may hold — type, default, unit, an example — as markdown "
+                   "(docs/scenarios.md)")
+def scenarios(scenario: str | None, reference: bool) -> None:
+    """List the shipped scenarios, or print SCENARIO's summary (a name or a YAML path): its robot, steps, start
+    pose, controller and cable model."""
+    from cdpr.config.scenario import load_scenario, shipped_scenarios
+
+    if reference:
+        from cdpr.config.reference import reference_markdown
+
+        click.echo(reference_markdown(), nl=False)
+        return
+    if scenario is None:
+        emit([{"name": n, "description": load_scenario(n, checks=()).description} for n in shipped_scenarios()])
+        return
+    s = load_scenario(scenario)
+    origin = s.initial_position - s.initial_rotation @ s.robot.com_offset
+    emit({"name": s.name, "source": s.source, "robot": s.robot.name, "cables": s.robot.m, "mass": s.robot.mass,
+          "dt": s.dt, "duration": s.duration, "total_steps": s.total_steps,
+          "start": {"position": [round(float(x), 12) + 0.0 for x in origin],
+                    "at_home": s.start_note() is None},
+          "controller": s.spec.controller.law, "tda": s.tda_method, "cable_model": s.cable_model,
+          "cameras": [c.name for c in s.cameras], "sensors": s.spec.sim.sensors is not None})
+    if (note := s.start_note()) is not None:
+        click.echo(f"cdpr: note: {note}", err=True)
+
+
 def why_not_held_text(r: Robot) -> str:
     from cdpr.mechanics.workspace import why_not_held
 
