@@ -468,7 +468,7 @@ def test_scurve_spec_builds_the_paper_s_curve() -> None:
                 "type": "quintic",
                 "waypoints": [{"t": float("inf"), "position": [0, 0, 0]}, {"t": 1, "position": [1, 0, 0]}],
             },
-            r"waypoints\.0\.t: Input should be a finite number",
+            r"waypoints\.0\.t: must be a finite number",
         ),
         ({"type": "scurve", "start": A, "goal": B, "times": [1, 2, 3]}, "exactly one of pass_height"),
         (

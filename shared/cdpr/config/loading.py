@@ -64,22 +64,66 @@ def read_yaml(path: Path) -> dict[str, Any]:
     return data
 
 
-def describe_validation_error(path: Path | str, exc: ValidationError) -> str:
-    """The first error of a pydantic ValidationError as ``file: dotted.field: message``."""
-    err = exc.errors()[0]
+def shown(value: Any) -> str:
+    """A value in a message: a number as short as it is exact (``-5``, ``2.264``, not ``-5.0``, ``2.26400…02``)."""
+    if isinstance(value, float) and not isinstance(value, bool):
+        return f"{value:.12g}".replace("-0", "0") if value == 0 else f"{value:.12g}"
+    text = repr(value)
+    return text if len(text) <= 60 else text[:57] + "..."
+
+
+# pydantic's bounds in the project's words (one wording for a bound, whichever file or option breaks it)
+_BOUNDS = {"greater_than": ("gt", ">"), "greater_than_equal": ("ge", ">="), "less_than": ("lt", "<"),
+           "less_than_equal": ("le", "<=")}
+
+
+def _fields(model: type[BaseModel] | None, loc: tuple[Any, ...]) -> list[str]:
+    """The keys a mapping at ``loc`` of ``model`` may hold (to say which one a misspelt key meant)."""
+    from typing import get_args
+
+    for part in loc:
+        if model is None or isinstance(part, int) or not isinstance(part, str):
+            continue
+        field = model.model_fields.get(part)
+        if field is None:
+            return []
+        found: type[BaseModel] | None = None
+        todo = [field.annotation]
+        while todo:
+            t = todo.pop()
+            if isinstance(t, type) and issubclass(t, BaseModel):
+                found = t
+                break
+            todo.extend(get_args(t))
+        model = found
+    return list(model.model_fields) if model is not None else []
+
+
+def describe_validation_error(path: Path | str, exc: ValidationError, model: type[BaseModel] | None = None) -> str:
+    """A pydantic ValidationError as ``file: dotted.field: message``, in one wording per kind of error: an unknown
+    key first (a misspelt key also makes the key it meant missing), with the key it may have meant."""
+    errors = exc.errors()
+    err = next((e for e in errors if e["type"] == "extra_forbidden"), errors[0])
     # Union branches appear in the location as type names ("list[float]"); they are not fields.
     loc = ".".join(str(p) for p in err["loc"] if not (isinstance(p, str) and "[" in p)) or "(top level)"
-    msg = err["msg"]
+    msg = err["msg"].removeprefix("Value error, ")
+    ctx = err.get("ctx") or {}
     if err["type"] == "missing":
         msg = "missing required key"
     elif err["type"] == "extra_forbidden":
-        msg = "unknown key (check its spelling)"
-    elif "input" in err and "(got " not in msg and not isinstance(err["input"], dict):
-        shown = repr(err["input"])
-        if len(shown) > 60:
-            shown = shown[:57] + "..."
-        msg = f"{msg} (got {shown})"
-    msg = msg.removeprefix("Value error, ")
+        import difflib
+
+        known = _fields(model, tuple(err["loc"][:-1]))
+        near = difflib.get_close_matches(str(err["loc"][-1]), known, n=1, cutoff=0.6)
+        msg = f"unknown key (did you mean {near[0]}?)" if near else "unknown key (check its spelling)"
+    elif err["type"] in _BOUNDS:
+        key, sign = _BOUNDS[err["type"]]
+        msg = f"must be {sign} {shown(ctx.get(key))}"
+    elif err["type"] in ("finite_number", "float_parsing", "float_type"):
+        msg = "must be a finite number"
+    if err["type"] not in ("missing", "extra_forbidden") and "input" in err and "(got " not in msg \
+            and not isinstance(err["input"], dict):
+        msg = f"{msg} (got {shown(err['input'])})"
     return f"{path}: {loc}: {msg}"
 
 
@@ -87,4 +131,4 @@ def parse_model(model: type[M], data: dict[str, Any], path: Path | str) -> M:
     try:
         return model.model_validate(data)
     except ValidationError as exc:
-        raise InputError(describe_validation_error(path, exc)) from None
+        raise InputError(describe_validation_error(path, exc, model)) from None

@@ -18,7 +18,7 @@ from pydantic import (
     model_validator,
 )
 
-from cdpr.config.loading import Strict, parse_model, read_yaml, resolve, shipped_names
+from cdpr.config.loading import Strict, parse_model, read_yaml, resolve, shipped_names, shown
 from cdpr.errors import InputError
 from cdpr.mechanics.kinematics import check_robot
 from cdpr.mechanics.pulley import Pulleys
@@ -59,7 +59,7 @@ class PlatformSpec(Strict):
     @classmethod
     def _mass_positive(cls, v: float) -> float:
         if v <= 0.0:
-            raise ValueError(f"must be > 0 (got {v})")
+            raise ValueError(f"must be > 0 (got {shown(v)})")
         return v
 
     @field_validator("inertia")
@@ -68,7 +68,7 @@ class PlatformSpec(Strict):
         J = np.asarray(v, dtype=float)
         if J.shape == ():
             if J <= 0.0:
-                raise ValueError(f"must be > 0 (got {v})")
+                raise ValueError(f"must be > 0 (got {shown(v)})")
             return v
         if J.shape == (3,):
             J = np.diag(J)

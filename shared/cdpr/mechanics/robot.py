@@ -167,13 +167,13 @@ class Robot:
     def with_mass(self, mass: float) -> Robot:
         """The same robot whose whole platform has this mass, with the solid-shape inertia for it."""
         if not 0.0 < mass < np.inf:
-            raise InputError(f"platform mass must be finite and > 0 (got {mass})")
+            raise InputError(f"mass: must be > 0 (got {mass:.12g})")
         return self.replace(mass=float(mass), inertia=self.shape.box_inertia(mass))
 
     def with_payload(self, payload: float) -> Robot:
         """A point-mass payload rigidly attached at the centre of mass: mass grows, inertia is unchanged."""
         if not 0.0 <= payload < np.inf:
-            raise InputError(f"payload must be finite and >= 0 (got {payload})")
+            raise InputError(f"payload: must be >= 0 (got {payload:.12g})")
         return self.replace(mass=self.mass + float(payload))
 
     def summary(self) -> dict[str, object]:

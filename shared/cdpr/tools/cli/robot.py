@@ -246,7 +246,7 @@ def tda(ctx: click.Context, robot: str, angles: str, static: bool, payload: floa
         raise InputError("give exactly one of --static or --wrench FX FY FZ MX MY MZ")
     if method not in METHODS:
         raise InputError(f"--method: unknown method {method!r} (known: {', '.join(sorted(METHODS))})")
-    r = analysed_robot(robot, cable_set).with_payload(payload)
+    r = _option("--payload", analysed_robot(robot, cable_set).with_payload, payload)
     lo, hi = _limits(r, tmin, tmax)
     position, R = _pose(_numbers("--pose", tuple(groups["--pose"])), angles)
     rows = list(r.controlled_rows)
@@ -271,6 +271,14 @@ def tda(ctx: click.Context, robot: str, angles: str, static: bool, payload: floa
     )
     if not result.feasible:
         sys.exit(INFEASIBLE_EXIT)
+
+
+def _option(flag: str, build: Any, value: float) -> Robot:
+    """``build(value)``, its error (``name: must be …``) said of the command-line option ``flag``."""
+    try:
+        return build(value)
+    except InputError as exc:
+        raise InputError(f"{flag}: {str(exc).split(': ', 1)[-1]}") from None
 
 
 def _limits(r: Any, tmin: float | None, tmax: float | None) -> tuple[np.ndarray, np.ndarray]:
@@ -320,10 +328,10 @@ def workspace(robot: str, payload: float, mass: float | None, step: float,
     from cdpr.recording.workspace import record_workspace
 
     r = analysed_robot(robot, cable_set)
-    r = (r if mass is None else r.with_mass(mass)).with_payload(payload)
+    r = _option("--payload", (r if mass is None else _option("--mass", r.with_mass, mass)).with_payload, payload)
     lo, hi = _limits(r, tmin, tmax)
     if not (np.isfinite(step) and step > 0):
-        raise InputError(f"--step: must be a positive length in m, got {step}")
+        raise InputError(f"--step: must be > 0 (got {step:.12g})")
     if not np.all(np.isfinite(orientation)):
         raise InputError("--orientation: roll, pitch and yaw must be finite")
     R = angles_to_matrix(angles, orientation)
