@@ -209,6 +209,33 @@ def test_points_grids_times_draws_reproducible_and_plant_only(tmp_path: Path) ->
         assert sigma == controller.spec.sim.sensors.encoders.sigma == point.values["encoder_sigma"]
 
 
+def test_a_study_says_first_what_varies_for_the_plant_and_for_the_controller(tmp_path: Path) -> None:
+    """A first mass sweep shows nothing when the controller knows each mass: the study's first lines say, for each
+    parameter, whether the controller is given it too, and how to make it a model error."""
+    from cdpr.tools.study.engine import describe, prepare
+
+    lines = describe(prepare(write(tmp_path, MONTE_CARLO), tmp_path / "out"))
+    assert lines[0] == "6 points of caroca_15kg, multi-process"
+    assert ("varies mass_factor: scale uniform [0.8, 1.2] for the plant only: the controller keeps the base "
+            "scenario's (a model error)") in lines
+    assert ("varies tda: set values qp, closed-form for the plant and the controller alike: the controller knows each "
+            "point's value (plant_only: true for a model error it does not know)") in lines
+
+
+def test_a_metric_the_parameter_does_not_change_is_drawn_flat_with_short_ticks() -> None:
+    """1e-14 of rounding on one number is not magnified into a wiggle with 14-digit tick labels."""
+    from cdpr.tools.study.plots import flat_range, tick
+
+    same = [0.02363447120255, 0.02363447120255 + 1e-14, 0.02363447120255 - 2e-14]
+    low, high = flat_range(same)  # type: ignore[misc]
+    assert low == pytest.approx(0.95 * 0.02363447120255)
+    assert high == pytest.approx(1.05 * 0.02363447120255)
+    assert flat_range([0.0236, 0.0237]) is None  # a real change is drawn as it is
+    assert flat_range([0.0, 0.0]) == (-1.0, 1.0)
+    assert [tick(x) for x in (0.02363447120255, 2.2640000000000002, -0.0, 1500.0, 1.5e-7)] == [
+        "0.02363", "2.264", "0", "1500", "1.5e-07"]
+
+
 # ------------------------------------------------------------------------------------------------
 # Real studies
 
@@ -234,13 +261,23 @@ def test_a_study_on_a_two_node_ray_cluster_runs_on_both_and_resumes(tmp_path: Pa
     node_ids = {n.node_id for n in cluster.list_all_nodes()}
     assert len(node_ids) == 2
 
+    said: list[str] = []
+
     def study_run() -> dict:
         proc = subprocess.run([*CDPR, "study", str(study), "--out", str(out), "--address", cluster.address],
                               capture_output=True, text=True, timeout=600, check=False)
         assert proc.returncode == 0, proc.stderr[-3000:]
+        said[:] = proc.stderr.splitlines()
         return last_json_line(proc.stdout)
 
     first = study_run()
+    # the study's own lines first, Ray's start-up and warnings (its token authentication's) kept out
+    assert said[0].startswith("[small] 4 points of caroca_15kg, ")  # and the mode the points run in
+    assert said[1:3] == ["[small] varies kp: set values 1000.0, 1500.0 for the plant and the controller alike: the "
+                        "controller knows each point's value (plant_only: true for a model error it does not know)",
+                        "[small] varies mass: set values 12.0, 15.0 for the plant and the controller alike: the "
+                        "controller knows each point's value (plant_only: true for a model error it does not know)"]
+    assert all(line.startswith("[small] ") for line in said), said
     assert (first["nodes"], first["points"], first["ran"], first["ok"]) == (2, 4, 4, 4), first
     rows = read_rows(out / "results.csv")
     assert [int(r["point"]) for r in rows] == [0, 1, 2, 3]

@@ -42,17 +42,21 @@ CONNECT_ATTEMPTS = 5  # a cluster's Ray Client server now and then fails to star
 CONNECT_RETRY_S = 2.0
 
 
-def connect_ray(address: str | None) -> dict[str, Any]:
-    """Join the cluster at ``address`` (or $RAY_ADDRESS), else start Ray on this machine. Its resources."""
+def connect_ray(address: str | None, verbose: bool = False) -> dict[str, Any]:
+    """Join the cluster at ``address`` (or $RAY_ADDRESS), else start Ray on this machine. Its resources. Ray's
+    own start-up lines and warnings (e.g. its token authentication's) only with ``verbose`` ($CDPR_RAY_LOG=1):
+    a study's output is the study's."""
     import ray
 
+    verbose = verbose or os.environ.get("CDPR_RAY_LOG", "") not in ("", "0")
+    level = logging.INFO if verbose else logging.ERROR
+    logging.getLogger("ray").setLevel(level)
     if not ray.is_initialized():
         address = address or os.environ.get("RAY_ADDRESS") or None
         if address:
-            join_cluster(lambda: ray.init(address=address, log_to_driver=False, logging_level=logging.WARNING),
-                         address)
+            join_cluster(lambda: ray.init(address=address, log_to_driver=False, logging_level=level), address)
         else:
-            ray.init(include_dashboard=False, log_to_driver=False, logging_level=logging.WARNING)
+            ray.init(include_dashboard=False, log_to_driver=False, logging_level=level)
     return {"nodes": len([n for n in ray.nodes() if n.get("Alive")]), "cpus": ray.cluster_resources().get("CPU", 0)}
 
 
@@ -227,6 +231,9 @@ def run_study(study_file: str | Path, out: Path | None = None, address: str | No
         return write_outputs(prep, 0, 0.0, {})
     import ray
 
+    if progress:
+        for line in describe(prep):
+            print(f"[{prep.spec.name}] {line}", file=sys.stderr, flush=True)
     cluster = connect_ray(address)
     remote = ray.remote(run_point).options(num_cpus=prep.spec.cpus_per_point, max_retries=1,
                                            scheduling_strategy="SPREAD")
@@ -254,6 +261,28 @@ def run_study(study_file: str | Path, out: Path | None = None, address: str | No
             bar.show()
     wall = time.monotonic() - started
     return write_outputs(prep, ran, wall, cluster)
+
+
+def describe(prep: Prepared) -> list[str]:
+    """The study's first lines: what it runs, and what varies for the plant and for the controller — a value the
+    controller is given too is one it compensates (a heavier platform it knows: the tracking does not change);
+    ``plant_only`` makes it a model error the controller does not know about."""
+    spec = prep.spec
+    modes = ", ".join(sorted({_point_mode(point, prep.mode) for point in prep.points}))
+    lines = [f"{len(prep.points)} points of {spec.scenario}, {modes}"
+             + (f" ({len(prep.points) - len(prep.todo)} done before: resumed)" if len(prep.todo) < len(prep.points)
+                else "")]
+    for p in spec.parameters:
+        values = p.discrete
+        law = (f"{p.law} {', '.join(map(str, values[:4]))}{' …' if len(values) > 4 else ''}" if values is not None
+               else f"{p.law} {getattr(p, p.law)}")
+        what = f"{p.column}: {p.op} {law}"
+        if p.plant_only:
+            lines.append(f"varies {what} for the plant only: the controller keeps the base scenario's (a model error)")
+        else:
+            lines.append(f"varies {what} for the plant and the controller alike: the controller knows each point's "
+                         "value (plant_only: true for a model error it does not know)")
+    return lines
 
 
 def finish(prep: Prepared, point: Point, result: dict[str, Any]) -> None:

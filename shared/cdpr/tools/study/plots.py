@@ -92,6 +92,35 @@ def study_plots(spec: StudySpec, rows: list[dict[str, Any]], out: Path) -> list[
     return written
 
 
+def flat_range(values: list[float]) -> tuple[float, float] | None:
+    """The axis range to give ``values`` that are one number to 1e-9 of their size (a metric the parameter does
+    not change, bar rounding): ±5 % around it, so that 1e-14 of noise is drawn flat, not magnified into a wiggle;
+    None when they vary."""
+    if not values:
+        return None
+    lo, hi = min(values), max(values)
+    scale = max(abs(lo), abs(hi))
+    if hi - lo > 1e-9 * scale:
+        return None
+    middle = (lo + hi) / 2
+    pad = 0.05 * abs(middle) if middle != 0 else 1.0
+    return middle - pad, middle + pad
+
+
+def tick(value: float, _: object = None) -> str:
+    """A tick label: four significant digits, no float noise (``0.02363``, not ``0.02363447120255``)."""
+    text = f"{value:.4g}"
+    return "0" if text in ("-0", "0") else text
+
+
+def _tidy(ax: Any, axis: str, values: list[float]) -> None:
+    from matplotlib.ticker import FuncFormatter
+
+    if (limits := flat_range(values)) is not None:
+        (ax.set_ylim if axis == "y" else ax.set_xlim)(*limits)
+    (ax.yaxis if axis == "y" else ax.xaxis).set_major_formatter(FuncFormatter(tick))
+
+
 def _safe(name: str) -> str:
     return "".join(c if c.isalnum() or c in "_-" else "_" for c in name)
 
@@ -101,11 +130,11 @@ def _histograms(spec: StudySpec, rows: list[dict[str, Any]], metrics: list[str],
     for ax, metric in zip(axes, metrics, strict=True):
         factor, _ = _unit(metric)
         values = np.array([v * factor for r in rows if (v := _number(r.get(metric))) is not None])
-        bins: Any = "auto" if np.ptp(values) > 0 else 1
+        bins: Any = "auto" if flat_range(values.tolist()) is None else 1
         ax.hist(values, bins=bins, color="#4c72b0", edgecolor="white")
         ax.set_xlabel(_label(metric))
         ax.set_ylabel("points")
-        ax.ticklabel_format(axis="x", style="sci", scilimits=(-3, 4), useOffset=False)
+        _tidy(ax, "x", values.tolist())
     return _save(fig, path, f"{spec.name}: {len(rows)} points")
 
 
@@ -132,7 +161,7 @@ def _versus(spec: StudySpec, rows: list[dict[str, Any]], metrics: list[str], col
         ax.set_xlabel(column)
         ax.set_ylabel(_label(metric))
         if pairs:
-            ax.ticklabel_format(axis="y", style="sci", scilimits=(-3, 4), useOffset=False)
+            _tidy(ax, "y", [y for _, y in pairs])
     return _save(fig, path, f"{spec.name}: metrics vs {column}")
 
 
