@@ -1,7 +1,8 @@
-"""Everything Rerun, in one place: ids, timelines, entity paths, the static scene, the blueprint, sinks.
+"""The recordings: Rerun's ids, timelines, static scene, blueprint and sinks, MCAP and Foxglove.
 
-The entity paths, the blueprint, the static scene and the Rerun sinks are in :mod:`cdpr.recording.scene`; MCAP
-and Foxglove in :mod:`cdpr.recording.mcap` and :mod:`cdpr.recording.live`; this package gathers their names.
+The blueprint, the static scene and the Rerun sinks are in :mod:`cdpr.recording.scene`; MCAP and Foxglove in
+:mod:`cdpr.recording.mcap` and :mod:`cdpr.recording.live`. The state stream's series (entity paths and columns)
+come from the protocol's one table, :mod:`cdpr.protocol.streams`; this package gathers the names.
 """
 
 from cdpr.protocol.streams import (
