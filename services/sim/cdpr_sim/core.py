@@ -84,6 +84,7 @@ from cdpr.mechanics.pulley import pulley_geometry
 from cdpr.mechanics.robot import GRAVITY, Robot
 from cdpr.mechanics.rotation import Array, matrix_to_quat, quat_matrix, readonly, rotvec_quat, skew
 from cdpr.protocol import State
+from cdpr.protocol.streams import STATE_COLUMNS
 
 _ORTHONORMAL_TOL = 1e-6  # a rotation given to the sim must satisfy ‖RᵀR − I‖∞ ≤ this, and det R > 0
 _PLANAR_TOL = 1e-9  # out-of-plane pose/twist components a planar robot tolerates (then set to 0)
@@ -167,7 +168,7 @@ class SimModel(Protocol):
         ...
 
     def message(self, clamped: int) -> State:
-        """The current state as a ``sim/state`` message."""
+        """The current state as a ``sim/state`` message, made by :func:`build` (every column the model's)."""
         ...
 
     def step(self, command: np.ndarray) -> StepReport:
@@ -376,7 +377,7 @@ class PlatformSim:
         which the next step needs, waits for :meth:`step` (or :meth:`state`): the sim service sends the
         message first."""
         pose, twist, _, lengths = self._read()
-        return State(self.step_count, self.step_count * self.dt, pose, (*twist[3:], *twist[:3]),
+        return build(self.step_count, self.step_count * self.dt, pose, (*twist[3:], *twist[:3]),
                      tuple(lengths.tolist()), tuple(self._tensions.tolist()), clamped)
 
     def snapshot(self) -> dict[str, Any]:
@@ -561,16 +562,49 @@ def arrays(snapshot: dict[str, Any], *names: str) -> list[Array | None]:
 
 
 # --------------------------------------------------------------------------------------------------
-# The scenario's model and its state as a message
+# The state as a message: one builder for every cable model
+#
+# ``State`` gives its later columns defaults (an older sender stays valid on the wire), so a model that built
+# it by hand could leave a new column at its default unnoticed. Every model's ``message`` goes through
+# :func:`build` instead, which takes each of the model's columns explicitly or raises (tests/test_state_builder.py
+# runs every model).
+
+# The columns of STATE_COLUMNS the sim node stamps on a model's message (cdpr_sim.node, ``publish_state``: how
+# old the command that acted over the step before was, and whether the watchdog acted instead); a model's
+# message has them 0. Every other column is the model's to give.
+STAMPED_COLUMNS = ("command_age", "watchdog")
+_NAMES = tuple(c.name for c in STATE_COLUMNS)
+if not set(STAMPED_COLUMNS) <= set(_NAMES):
+    raise RuntimeError(f"cdpr_sim.core.STAMPED_COLUMNS: {STAMPED_COLUMNS} are not all state columns")
+MODEL_COLUMNS = tuple(name for name in _NAMES if name not in STAMPED_COLUMNS)
+_ARGUMENTS = ("pose", "twist", "cable_lengths", "tensions", "clamped")  # build's, in their order
+_PLAIN = (*_ARGUMENTS, *STAMPED_COLUMNS) == _NAMES  # build's arguments are the model's columns, then the stamped
+
+
+def build(step: int, t: float, pose: tuple[float, ...], twist: tuple[float, ...], cable_lengths: tuple[float, ...],
+          tensions: tuple[float, ...], clamped: int, **more: Any) -> State:
+    """The ``sim/state`` message of step ``step`` at time ``t``: the one builder of every cable model's.
+
+    It takes every column of :data:`cdpr.protocol.streams.STATE_COLUMNS` but the :data:`STAMPED_COLUMNS`
+    (which are 0 here), i.e. every one of :data:`MODEL_COLUMNS`: the five above, each required, and any column
+    added to the table since by name in ``more``. A column left out, or one that is not the model's to give,
+    is a ``TypeError`` naming it, never a default.
+    """
+    if not more and _PLAIN:  # each step's case: no dict (command_age and watchdog 0)
+        return State(step, t, pose, twist, cable_lengths, tensions, clamped, 0, 0)
+    values: dict[str, Any] = {"pose": pose, "twist": twist, "cable_lengths": cable_lengths, "tensions": tensions,
+                              "clamped": clamped, **more}
+    if unknown := [name for name in values if name not in MODEL_COLUMNS]:
+        raise TypeError(f"not a state column a model gives: {', '.join(unknown)} (those: {', '.join(MODEL_COLUMNS)})")
+    if missing := [name for name in MODEL_COLUMNS if name not in values]:
+        raise TypeError(f"no value for the state column(s) {', '.join(missing)}: every cable model's message gives "
+                        "every column of cdpr.protocol.streams.STATE_COLUMNS (cdpr_sim.core.build)")
+    values.update(dict.fromkeys(STAMPED_COLUMNS, 0))
+    return State(step, t, **values)
 
 
 def state_message(s: PlatformState, clamped: int) -> State:
-    return State(
-        step=s.step,
-        t=s.t,
-        pose=(*s.position.tolist(), *s.quaternion.tolist()),
-        twist=tuple(s.twist.tolist()),
-        cable_lengths=tuple(s.cable_lengths.tolist()),
-        tensions=tuple(s.tensions.tolist()),
-        clamped=clamped,
-    )
+    """The ``sim/state`` message of a :class:`PlatformState` (the models of :mod:`cdpr_sim.ups` and
+    :mod:`cdpr_sim.winch`; :meth:`PlatformSim.message` gives the same numbers from less work), by :func:`build`."""
+    return build(s.step, s.t, (*s.position.tolist(), *s.quaternion.tolist()), tuple(s.twist.tolist()),
+                 tuple(s.cable_lengths.tolist()), tuple(s.tensions.tolist()), clamped)

@@ -63,7 +63,7 @@ class LocalLoop:
         key = (scenario.spec.trajectory.model_dump_json(), scenario.dt)
         if key != self._trajectory:  # the setpoints depend on the trajectory only: kept from episode to episode
             self._trajectory = key
-            self.setpoint_at = _cached(node_class("trajectory").make_block_core(scenario))  # type: ignore[attr-defined]
+            self.setpoint_at = _cached(node_class("trajectory").make_block_core(scenario))
         self.sensors = sim.make_sensors(scenario)  # type: ignore[attr-defined]  # the sim node's
         self.total_steps = scenario.total_steps
         self.clamped = 0
@@ -257,7 +257,10 @@ class SessionLoop:
                 if sample.kind == zenoh.SampleKind.DELETE:
                     self._clocks_gone.release()
 
-            self._watch = self.zenoh.liveliness().declare_subscriber(self.keys.alive("clock"), on_token)
+            # on Zenoh's thread (indirect=False): no Python thread of the binding's left to end at exit (see
+            # cdpr.runtime.service.declare_topics)
+            self._watch = self.zenoh.liveliness().declare_subscriber(
+                self.keys.alive("clock"), zenoh.handlers.Callback(on_token, indirect=False))
         return self.zenoh
 
     def _fetch_info(self, deadline: float) -> SessionInfo:

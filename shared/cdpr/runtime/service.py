@@ -101,6 +101,13 @@ class Node:
         ``cdpr bench``'s monolithic loop). Nodes whose work is only messaging have none."""
         raise NotImplementedError(f"the {cls.name} node has no pure core")
 
+    @classmethod
+    def make_block_core(cls, scenario: Scenario) -> Callable[[int, int], tuple[Setpoint, ...]]:
+        """The node's pure block function for ``scenario``: steps ``first`` … ``last`` → the setpoints it
+        publishes for them in one block (the trajectory node's ``trajectory/setpoints``), without Zenoh (the
+        gym's local loop, ``cdpr bench``'s loops). Nodes that publish no setpoints have none."""
+        raise NotImplementedError(f"the {cls.name} node publishes no setpoints: it has no block core")
+
     def configure(self, conf: zenoh.Config) -> None:
         """Adjust the Zenoh config of the node's own process before its session opens (what a feature of the
         node needs from Zenoh: the ros2 node's timestamps)."""
@@ -376,13 +383,18 @@ def declare_topics(node: Node, session: zenoh.Session, inbox: Inbox) -> list[Any
     def on_ping(query: zenoh.Query) -> None:  # an echo, answered on Zenoh's thread (never waits for the node)
         query.reply(query.key_expr, b"" if query.payload is None else query.payload.to_bytes())
 
-    keep.append(session.declare_queryable(keys.topic("ping", node.name), on_ping))
+    # The queries are answered on Zenoh's thread (indirect=False), not on a Python thread of the binding's: such a
+    # thread ends only after its queryable is gone, and one still ending while the interpreter exits is killed
+    # inside the binding, which aborts the process ("FATAL: exception not rethrown", exit code -6) after a
+    # session that went well.
+    keep.append(session.declare_queryable(keys.topic("ping", node.name),
+                                          zenoh.handlers.Callback(on_ping, indirect=False)))
     for topic in node.publishes:
         if TOPICS[topic].transport == "queryable":
             def on_query(query: zenoh.Query, topic: str = topic) -> None:
                 query.reply(query.key_expr, node.reply(topic))
 
-            keep.append(session.declare_queryable(keys.topic(topic), on_query))
+            keep.append(session.declare_queryable(keys.topic(topic), zenoh.handlers.Callback(on_query, indirect=False)))
         elif "{" not in TOPICS[topic].key:  # a key per instance (sim/camera/<name>): the node declares them
             node.publishers[topic] = session.declare_publisher(keys.topic(topic, node.name), **PUBLISH_OPTS)
     keep.extend(node.publishers.values())

@@ -77,7 +77,8 @@ def ping(session: zenoh.Session, keys: Keys, node: str = "sim", count: int = 200
         if sample.kind == zenoh.SampleKind.PUT:
             there.set()
 
-    watch = session.liveliness().declare_subscriber(keys.alive(node), on_token, history=True)
+    watch = session.liveliness().declare_subscriber(keys.alive(node), zenoh.handlers.Callback(on_token, indirect=False),
+                                                    history=True)
     there.wait(wait)
     watch.undeclare()
     for _ in range(3):  # warm the route (the first query also resolves it)

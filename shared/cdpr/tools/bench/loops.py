@@ -46,7 +46,7 @@ def monolithic_steps(scenario: Scenario, steps: int, timers: dict[str, float] | 
 
     sim = node_class("sim").make_core(scenario)
     core = node_class("controller").make_core(scenario)
-    setpoints_between = node_class("trajectory").make_block_core(scenario)  # type: ignore[attr-defined]
+    setpoints_between = node_class("trajectory").make_block_core(scenario)
     m, dt = scenario.robot.m, scenario.dt
     clock = time.perf_counter
     parts = dict.fromkeys(("sim", "controller", "trajectory", "messages"), 0.0)

@@ -100,7 +100,7 @@ def peer_steps(scenario: Scenario, steps: int) -> float:
 
     plant = MujocoPlant(scenario)
     core = node_class("controller").make_core(scenario)
-    setpoints_between = node_class("trajectory").make_block_core(scenario)  # type: ignore[attr-defined]
+    setpoints_between = node_class("trajectory").make_block_core(scenario)
     setpoints: tuple[Setpoint, ...] = ()
     t0 = time.perf_counter()
     for k in range(steps):
