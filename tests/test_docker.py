@@ -640,7 +640,7 @@ def test_a_study_runs_on_a_ray_cluster_of_containers_and_survives_a_lost_worker(
                 CDPR_RAY_CLIENT_PORT=str(free_port()), CDPR_RAY_PORT=str(free_port()),
                 CDPR_RAY_DASHBOARD_PORT=str(free_port()))
     project.append(p)
-    up = p.compose("up", "-d", "--scale", "ray-worker=2", "ray-head", "ray-worker", timeout=300)
+    up = p.compose("up", "-d", "--scale", "ray-worker=2", "ray-head", "ray-worker", timeout=600)
     assert up.returncode == 0, up.stdout[-2000:] + up.stderr[-3000:]
     head = p.container("ray-head")
     alive = ["python", "-c",

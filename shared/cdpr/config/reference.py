@@ -14,7 +14,6 @@ from collections.abc import Iterator
 from dataclasses import dataclass
 from typing import Annotated, Any, Literal, Union, get_args, get_origin
 
-import annotated_types as at
 from pydantic import BaseModel, RootModel
 from pydantic.fields import FieldInfo
 
@@ -37,9 +36,9 @@ def _bounds(meta: list[Any]) -> str:
         for name, sign in (("gt", ">"), ("ge", "≥"), ("lt", "<"), ("le", "≤")):
             if getattr(m, name, None) is not None:
                 out.append(f"{sign} {getattr(m, name):g}")
-        if isinstance(m, at.MinLen) and m.min_length:
+        if getattr(m, "min_length", None):  # pydantic's constraints (annotated-types' MinLen, MaxLen), by name
             out.append(f"at least {m.min_length}")
-        if isinstance(m, at.MaxLen):
+        if getattr(m, "max_length", None) is not None:
             out.append(f"at most {m.max_length}")
     return ", ".join(out)
 
@@ -62,8 +61,8 @@ def _models(ann: Any) -> list[tuple[type[BaseModel], bool]]:
 
 def _length(meta: list[Any]) -> int | None:
     """The exact length a list must have (min_length = max_length), if any."""
-    low = next((m.min_length for m in meta if isinstance(m, at.MinLen)), None)
-    high = next((m.max_length for m in meta if isinstance(m, at.MaxLen)), None)
+    low = next((m.min_length for m in meta if getattr(m, "min_length", None) is not None), None)
+    high = next((m.max_length for m in meta if getattr(m, "max_length", None) is not None), None)
     return low if low is not None and low == high else None
 
 
