@@ -39,12 +39,12 @@ def bench(tmp_path_factory: pytest.TempPathFactory) -> tuple[dict, str]:
 
 def test_top_level_and_machine(bench: tuple[dict, str]) -> None:
     r, _ = bench
-    assert r["version"] == 12
+    assert r["version"] == 13
     assert r["quick"] is True
     assert r["scenario"] == "caroca_15kg"
     for key in ("plan", "machine", "started", "elapsed_s", "monolithic", "distributed", "loops", "deliveries",
                 "startup", "zenoh_rtt", "realtime", "realtime_2khz", "tda", "scaling", "mujoco", "ros2", "cameras",
-                "gym", "targets"):
+                "gym", "fk", "targets"):
         assert key in r, key
     m = r["machine"]
     assert isinstance(m["nproc"], int)
@@ -52,7 +52,7 @@ def test_top_level_and_machine(bench: tuple[dict, str]) -> None:
     assert isinstance(m["cpu_model"], str)
     assert len(m["loadavg"]) == 3
     assert len(m["loadavg_end"]) == 3
-    parts = ["loops", "startup", "zenoh_rtt", "realtime", "tda", "scaling", "mujoco", "ros2", "cameras", "gym"]
+    parts = ["loops", "startup", "zenoh_rtt", "realtime", "tda", "scaling", "mujoco", "ros2", "cameras", "gym", "fk"]
     assert list(m["loadavg_by_part"]) == parts
     assert all(isinstance(x, float) and x >= 0 for x in m["loadavg_by_part"].values())
     assert _positive(r["elapsed_s"])

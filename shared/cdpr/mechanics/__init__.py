@@ -1,3 +1,3 @@
-"""Pure mechanics: rotations, the robot, kinematics, dynamics, control laws, tension distribution,
-trajectories, cables and the workspace. numpy (and scipy, imported where a function needs it) only:
-no I/O, no messaging, no files."""
+"""Pure mechanics: rotations, the robot, kinematics (inverse, and forward: :mod:`.forward`), dynamics, control laws,
+tension distribution, trajectories, cables and the workspace. numpy (and scipy, imported where a function needs
+it) only: no I/O, no messaging, no files."""

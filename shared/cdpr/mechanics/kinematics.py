@@ -20,9 +20,10 @@ import numpy as np
 from numpy.typing import ArrayLike
 
 from cdpr.errors import InputError
+from cdpr.mechanics.forward import MAX_ITERATIONS, TOL, ForwardKinematics
 from cdpr.mechanics.pulley import Pulleys, pulley_geometry
 from cdpr.mechanics.robot import Robot
-from cdpr.mechanics.rotation import Array, cross_rows, rotvec_to_matrix
+from cdpr.mechanics.rotation import Array, cross_rows
 
 
 @dataclass(frozen=True)
@@ -143,7 +144,8 @@ class ForwardKinematicsResult:
     position: Array
     rotation: Array
     residual: float  # max |l(x) − l| over cables, m
-    converged: bool
+    converged: bool  # the solver converged and the lengths are consistent (residual < 1e-6 m)
+    iterations: int = 0
 
 
 def forward_kinematics(
@@ -151,43 +153,20 @@ def forward_kinematics(
     lengths: ArrayLike,
     guess_position: ArrayLike | None = None,
     guess_rotation: ArrayLike | None = None,
-    tol: float = 1e-10,
+    tol: float = TOL,
+    max_iterations: int = MAX_ITERATIONS,
 ) -> ForwardKinematicsResult:
-    """Pose whose cable lengths are ``lengths`` (numerical: Levenberg–Marquardt from a guess).
+    """Pose whose cable lengths are ``lengths``: :class:`cdpr.mechanics.forward.ForwardKinematics` (Gauss–Newton /
+    Levenberg–Marquardt on the analytic length Jacobian) from the guess, else from the home pose.
 
     With more cables than DOF the lengths over-determine the pose; the result is the least-squares
-    pose and ``residual`` says how far the lengths are from consistent. Point-mass robots solve for the
-    position only; planar robots for their plane's two coordinates and the rotation about its normal.
+    pose and ``residual`` says how far the lengths are from consistent (``converged`` only when they are, to
+    1e-6 m). Point-mass robots solve for the position only; planar robots for their plane's two coordinates and
+    the rotation about its normal.
     """
-    target = np.asarray(lengths, dtype=float)
-    p0 = np.asarray(robot.home_position if guess_position is None else guess_position, dtype=float)
-    R0 = np.asarray(robot.home_rotation if guess_rotation is None else guess_rotation, dtype=float)
-
-    normal = robot.normal_axis
-    in_plane = [j for j in range(3) if j != normal]
-
-    def unpack(x: Array) -> tuple[Array, Array]:
-        if robot.mode == "point_mass":
-            return x, R0
-        if robot.mode == "planar":
-            p = p0.copy()
-            p[in_plane] = x[:2]
-            return p, rotvec_to_matrix(np.eye(3)[normal] * x[2]) @ R0
-        return x[:3], rotvec_to_matrix(x[3:]) @ R0
-
-    def residual(x: Array) -> Array:
-        p, R = unpack(x)
-        return cable_kinematics(robot.frame_points, robot.platform_points, p, R, robot.pulleys).lengths - target
-
-    x0 = {"point_mass": p0.copy(), "planar": np.r_[p0[in_plane], 0.0], "spatial": np.r_[p0, 0.0, 0.0, 0.0]}[
-        robot.mode
-    ]
-    from scipy.optimize import least_squares  # only forward kinematics needs scipy
-
-    sol = least_squares(residual, x0, method="lm", xtol=tol, ftol=tol, gtol=tol, max_nfev=2000)
-    p, R = unpack(sol.x)
-    err = float(np.abs(residual(sol.x)).max())
-    return ForwardKinematicsResult(p, R, err, bool(sol.success) and err < 1e-6)
+    r = ForwardKinematics(robot, tol, max_iterations).solve(lengths, guess_position, guess_rotation)
+    return ForwardKinematicsResult(r.position, r.rotation, r.residual, r.converged and r.residual < 1e-6,
+                                   r.iterations)
 
 
 def check_robot(robot: Robot, where: str) -> None:

@@ -22,7 +22,8 @@ when the machine is shared and its absolute speed drifts):
    smooth path (as in the loop: warm), on random well-conditioned robots built here;
 6. ``scaling``: steps/s and CPU per step with 1, 2, 4, 8 concurrent sessions, and with 4 → 16 cables
    (generated robot and scenario files in a temporary directory);
-7–10. the MuJoCo peer, a ROS 2 controller, cameras, the Gymnasium environment (their modules' docstrings).
+7–10. the MuJoCo peer, a ROS 2 controller, cameras, the Gymnasium environment (their modules' docstrings);
+11. ``fk``: forward kinematics by the Mahnke & Caverly (2025) protocol on cogiro and caroca (:mod:`.fk`).
 
 Medians over repeats; ``--quick`` runs every part once, a few hundred steps a session (a quick look, about a
 minute). Results are printed as a table and written as JSON. The Linux ``/proc`` file system gives the
@@ -149,6 +150,10 @@ def targets(result: dict[str, Any]) -> dict[str, dict[str, Any]]:
         out["camera_images_realtime_drop_points<=0.2"] = target(x := cams["realtime_on_time_drop_points"], x <= 0.2)
     if (g := result.get("gym", {})).get("available"):  # #27
         out["gym_local/monolithic>=2"] = target(x := g["local_to_monolithic"], x >= 2.0)
+    if "fk" in result:  # #46
+        from cdpr.tools.bench.fk import fk_targets
+
+        out.update(fk_targets(result["fk"]))
     return out
 
 
@@ -170,7 +175,7 @@ def run_bench(plan: BenchPlan, scenario: str = "caroca_15kg", out: Path | None =
 
     def part(name: str, message: str) -> None:
         load[name] = os.getloadavg()[0]
-        log(f"{len(load)}/10 {message}")
+        log(f"{len(load)}/11 {message}")
 
     part("loops", f"distributed loop: multi-process, recording (.rrd; .rrd and .mcap), in-process (x "
                   f"{plan.loop_repeats}), each after the monolithic loop ({plan.mono_steps} steps)")
@@ -223,6 +228,11 @@ def run_bench(plan: BenchPlan, scenario: str = "caroca_15kg", out: Path | None =
 
     result["gym"] = bench_gym(scenario, plan.gym_duration, plan.gym_rounds, plan.gym_session_duration,
                               plan.gym_vector_steps)
+    from cdpr.tools.bench.fk import POSES, QUICK_POSES, ROBOTS, bench_fk  # here: python -m runs the module alone
+
+    part("fk", f"forward kinematics, the Mahnke & Caverly protocol on {' and '.join(ROBOTS)} "
+               f"({QUICK_POSES if plan == QUICK else POSES} poses each: cold, warm, noisy)")
+    result["fk"] = bench_fk(quick=plan == QUICK)
     result["machine"]["loadavg_end"] = list(os.getloadavg())
     result["elapsed_s"] = time.monotonic() - started
     result["targets"] = targets(result)
@@ -408,6 +418,10 @@ def table(r: dict[str, Any]) -> str:
         )]
     else:
         lines.append(f"    {g['reason']}")
+    if "fk" in r:
+        from cdpr.tools.bench.fk import fk_lines
+
+        lines += ["", *fk_lines(r["fk"])]
     lines += ["", "targets"]
     lines += [target_line(name, t) for name, t in r["targets"].items()]
     return "\n".join(lines)

@@ -5,7 +5,7 @@ from __future__ import annotations
 import sys
 from dataclasses import dataclass
 
-BENCH_VERSION = 12  # 2: loop variants (recording, in-process), deliveries, start-up; 3: the recorder writing
+BENCH_VERSION = 13  # 2: loop variants (recording, in-process), deliveries, start-up; 3: the recorder writing
 # an .rrd and an .mcap (loops.multi_process_recording_both, loops.recording_both_cost, its target); 4: the
 # monolithic loop measured before each run of a variant (M A M B M C M D), no longer first and apart; 5: the
 # MuJoCo peer (mujoco: its loop beside the monolithic one, the engines' agreement; its target); 6: realtime paced by
@@ -15,7 +15,8 @@ BENCH_VERSION = 12  # 2: loop variants (recording, in-process), deliveries, star
 # costs from rounds of adjacent runs (the median of each round's ratio), realtime in rounds too; the ros2 node in
 # the sim's process (sim+ros2); 11: the MuJoCo peer takes its setpoints in the monolithic loop's blocks (the
 # trajectory's block sample, as the node publishes them); 12: the cameras part's realtime in 5 rounds (its
-# rounds' drops spread over ±0.3 points: the median of 3 moved by as much as the target)
+# rounds' drops spread over ±0.3 points: the median of 3 moved by as much as the target);
+# 13: forward kinematics (part fk, #46)
 
 
 @dataclass(frozen=True)

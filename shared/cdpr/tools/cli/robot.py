@@ -1,4 +1,4 @@
-"""``cdpr robots|ik|tda|workspace|export-sdf``: robot tools (no session, no network)."""
+"""``cdpr robots|ik|fk|tda|workspace|export-sdf``: robot tools (no session, no network)."""
 
 from __future__ import annotations
 
@@ -189,6 +189,163 @@ def ik(ctx: click.Context, robot: str, angles: str, cable_set: str | None) -> No
     if problems:
         click.echo(f"cdpr ik: the robot cannot take this pose: {'; '.join(problems)}", err=True)
         sys.exit(3)
+
+
+_LENGTHS = ("--lengths", "L1 … Lm", "the cable lengths, m, one per cable in the robot file's order  [required unless "
+            "--csv]")
+_GUESS = ("--guess", "X Y Z [A B C]", "where the solver starts: the platform frame's pose, as --pose is (default: the "
+          "robot's home pose)")
+_TENSIONS = ("--tensions", "T1 … Tm", "with --ea: the cables' tensions, N; the lengths are then unstretched ones l0 "
+             "and the pose is that of the stretched lengths l0 (1 + T/EA)")
+
+
+def _fk_lengths(flag: str, raw: list[str], r: Robot, what: str = "lengths") -> np.ndarray:
+    values = np.array(_numbers(flag, tuple(raw)))
+    if values.size != r.m:
+        raise InputError(f"{flag}: expected {r.m} {what} (one per cable of {r.name}), got {values.size}")
+    if not np.all(np.isfinite(values)) or (what == "lengths" and np.any(values <= 0.0)):
+        raise InputError(f"{flag}: every one must be finite{' and > 0' if what == 'lengths' else ''}")
+    return values
+
+
+def _fk_pose(r: Robot, fk: Any, angles: str) -> dict[str, Any]:
+    """A solve's pose as ``cdpr fk`` prints it: the platform frame's (what --pose gives), the COM's, the angles."""
+    from cdpr.mechanics.rotation import matrix_to_rotvec, matrix_to_rpy
+
+    R = fk.rotation
+    origin = fk.position - R @ r.com_offset
+    if angles == "rpy":
+        three = list(matrix_to_rpy(R))
+    else:  # Euler XYZ: R = Rx(a)·Ry(b)·Rz(c)
+        b = float(np.arcsin(np.clip(R[0, 2], -1.0, 1.0)))
+        three = [float(np.arctan2(-R[1, 2], R[2, 2])), b, float(np.arctan2(-R[0, 1], R[0, 0]))]
+    return {"position": [float(x) + 0.0 for x in origin], angles: [x + 0.0 for x in three],  # (+ 0.0: no -0.0)
+            "rotation": (R + 0.0).tolist(), "rotvec": (matrix_to_rotvec(R) + 0.0).tolist(),
+            "com": (fk.position + 0.0).tolist()}
+
+
+def _fk_problem(fk: Any, max_residual: float, max_iterations: int) -> str | None:
+    if not fk.converged:
+        return (f"the solver did not converge in {max_iterations} iterations (residual {fk.residual:.3g} m; "
+                "another --guess may help)")
+    if fk.residual > max_residual:
+        return f"the lengths are inconsistent: residual {fk.residual:.3g} m > --max-residual {max_residual:g} m"
+    return None
+
+
+@cli.command(cls=_numbers_command(_LENGTHS, _GUESS, _TENSIONS),
+             context_settings={"ignore_unknown_options": True, "allow_extra_args": True})
+@click.argument("robot")
+@click.option("--csv", "csv_file", default=None, metavar="FILE",
+              help="the lengths of many poses, a line each (m, separated by commas or spaces; with --ea the m "
+                   "tensions after them; blank lines and # comments skipped; - for stdin): a CSV line per pose on "
+                   "stdout, each solve started from the pose before")
+@click.option("--ea", "ea", type=float, default=None, metavar="N",
+              help="every cable's axial stiffness EA, N: correct the lengths for elastic stretch (with --tensions)")
+@click.option("--max-residual", type=float, default=1e-3, show_default=True,
+              help="m: lengths that no pose matches closer than this (the largest |l_i(pose) − L_i|) are "
+                   "inconsistent")
+@click.option("--tol", type=float, default=1e-9, show_default=True, help="the solver's tolerance, m and rad")
+@click.option("--max-iterations", type=int, default=30, show_default=True, help="the solver's iterations")
+@_angles_option()
+@_cable_set_option()
+@click.pass_context
+def fk(ctx: click.Context, robot: str, csv_file: str | None, ea: float | None, max_residual: float, tol: float,
+       max_iterations: int, angles: str, cable_set: str | None) -> None:
+    """Forward kinematics of ROBOT: the pose whose cable lengths are --lengths L1 … Lm (JSON), or those of each
+    line of --csv FILE (CSV).
+
+    Prints the platform frame's pose (position, m; three angles, rad, in --angles' convention; the rotation),
+    the centre of mass's position, the solver's iterations, whether it converged and the residual (the largest
+    |l_i(pose) − L_i|, m: the least-squares pose when the lengths are noisy). Exit code 3 when the solver does not
+    converge or the residual exceeds --max-residual (the JSON is still printed, consistent false and the problem;
+    with --csv, every line is and one line on stderr counts them), 2 for bad input.
+    """
+    from cdpr.mechanics.forward import ForwardKinematics
+
+    groups = _split_numbers(list(ctx.args), ("--lengths", "--guess", "--tensions"))
+    if csv_file is None and "--lengths" not in groups:
+        raise InputError("--lengths L1 … Lm (or --csv FILE) is required")
+    if csv_file is not None and "--lengths" in groups:
+        raise InputError("--csv: give --lengths or --csv, not both")
+    if csv_file is not None and "--tensions" in groups:
+        raise InputError("--tensions: with --csv, the tensions go on each line after the lengths")
+    if csv_file is None and (ea is not None) != ("--tensions" in groups):
+        raise InputError("--ea/--tensions: the elastic correction needs both")
+    if ea is not None and not (np.isfinite(ea) and ea > 0.0):
+        raise InputError(f"--ea: must be > 0 (got {ea:.12g})")
+    for flag, value in (("--max-residual", max_residual), ("--tol", tol)):
+        if not (np.isfinite(value) and value > 0.0):
+            raise InputError(f"{flag}: must be > 0 (got {value:.12g})")
+    if max_iterations < 1:
+        raise InputError(f"--max-iterations: must be >= 1 (got {max_iterations})")
+    r = analysed_robot(robot, cable_set)
+    solver = ForwardKinematics(r, tol, max_iterations)
+    if "--guess" in groups:
+        values = _numbers("--guess", tuple(groups["--guess"]))
+        if len(values) not in (3, 6) or not np.all(np.isfinite(values)):
+            raise InputError(f"--guess: expected X Y Z [A B C] (finite; three angles in --angles {angles}), got "
+                             f"{len(values)} number(s)")
+        position, R = _pose(values, angles)
+        solver.position, solver.rotation = r.com_pose(position, R), R
+    if csv_file is None:
+        lengths = _fk_lengths("--lengths", groups["--lengths"], r)
+        tensions = None if ea is None else _fk_lengths("--tensions", groups["--tensions"], r, "tensions")
+        result = solver.solve(lengths, tensions=tensions, EA=ea)
+        problem = _fk_problem(result, max_residual, max_iterations)
+        emit({**_fk_pose(r, result, angles), "iterations": result.iterations, "converged": result.converged,
+              "residual": result.residual, "residual_norm": result.residual_norm, "consistent": problem is None,
+              "problems": [] if problem is None else [problem]})
+        if problem is not None:
+            click.echo(f"cdpr fk: no pose has these lengths: {problem}", err=True)
+            sys.exit(INFEASIBLE_EXIT)
+        return
+    _fk_csv(r, solver, csv_file, ea, angles, max_residual, max_iterations)
+
+
+def _fk_csv(r: Robot, solver: Any, csv_file: str, ea: float | None, angles: str, max_residual: float,
+            max_iterations: int) -> None:
+    """``cdpr fk --csv``: a pose per line of lengths, each solve warm-started from the last converged one."""
+    import re
+
+    try:
+        text = sys.stdin.read() if csv_file == "-" else Path(csv_file).read_text(encoding="utf-8")
+    except OSError as exc:
+        raise InputError(f"--csv: cannot read {csv_file}: {exc.strerror or exc}") from None
+    rows: list[tuple[int, np.ndarray]] = []
+    per_line = 2 * r.m if ea is not None else r.m
+    what = f"{r.m} lengths and {r.m} tensions" if ea is not None else f"{r.m} lengths"
+    for number, line in enumerate(text.splitlines(), start=1):
+        fields = [f for f in re.split(r"[,\s]+", line.split("#", 1)[0].strip()) if f]
+        if not fields:
+            continue
+        where = f"--csv {csv_file}: line {number}"
+        values = np.array(_numbers(where, tuple(fields)))
+        if values.size != per_line:
+            raise InputError(f"{where}: expected {what} (one per cable of {r.name}), got {values.size} number(s)")
+        if not np.all(np.isfinite(values)) or np.any(values[: r.m] <= 0.0):
+            raise InputError(f"{where}: every number must be finite and every length > 0")
+        rows.append((number, values))
+    if not rows:
+        raise InputError(f"--csv {csv_file}: no lines of lengths")
+    names = {"rpy": ("roll", "pitch", "yaw"), "xyz": ("a", "b", "c")}[angles]
+    click.echo(",".join(("line", "x", "y", "z", *names, "iterations", "converged", "residual")))
+    bad: list[str] = []
+    for number, values in rows:
+        if ea is None:
+            result = solver.solve(values)
+        else:
+            result = solver.solve(values[: r.m], tensions=values[r.m:], EA=ea)
+        pose = _fk_pose(r, result, angles)
+        click.echo(",".join([str(number), *(f"{x:.12g}" for x in pose["position"] + pose[angles]),
+                             str(result.iterations), "true" if result.converged else "false",
+                             f"{result.residual:.6g}"]))
+        if (problem := _fk_problem(result, max_residual, max_iterations)) is not None:
+            bad.append(f"line {number}: {problem}")
+    if bad:
+        click.echo(f"cdpr fk: {len(bad)} of {len(rows)} line(s) have no pose with their lengths ({bad[0]}"
+                   f"{'; …' if len(bad) > 1 else ''})", err=True)
+        sys.exit(INFEASIBLE_EXIT)
 
 
 def _numbers(flag: str, raw: tuple[Any, ...]) -> tuple[float, ...]:
