@@ -463,8 +463,10 @@ class SecureSession:
     """docker/compose.yaml + compose.secure.yaml's services for one session, as processes on this machine,
     behind the secure router; ``env``: the compose variables (CDPR_SCENARIO, CDPR_ARGS …)."""
 
-    def __init__(self, tmp: Path, session_id: str, names: tuple[str, ...], **env: str) -> None:
+    def __init__(self, tmp: Path, session_id: str, names: tuple[str, ...], later: tuple[str, ...] = (),
+                 **env: str) -> None:
         self.tmp, self.sid = tmp, session_id
+        self.later = later  # services not started on entering (:meth:`restart` starts them)
         self.compose_dir = compose_dir_with_secrets(tmp)
         services = load_compose([COMPOSE, SECURE], {"CDPR_SESSION": session_id, **env})
         self.port = free_port()
@@ -473,8 +475,9 @@ class SecureSession:
         self.procs = Processes()
 
     def __enter__(self) -> SecureSession:
-        for c in self.containers.values():
-            self.procs.run(c)
+        for name, c in self.containers.items():
+            if name not in self.later:
+                self.procs.run(c)
         return self
 
     def __exit__(self, *exc: object) -> None:
@@ -521,21 +524,32 @@ def test_a_secure_ibvs_session_carries_cameras_ping_a_sim_restart_and_the_record
     from cdpr.tools.report import read_recording, summarize
 
     names = ("clock", "sim", "trajectory", "recorder", "controller")
-    with SecureSession(tmp_path, session_id, names, CDPR_SCENARIO="caroca_15kg_ibvs", CDPR_ARGS="") as s:
+    # every node is pinged while the session is held, whatever the machine's speed: the others while the clock
+    # waits for the recorder to join (started last), the recorder while the clock waits for the killed sim
+    with SecureSession(tmp_path, session_id, names, later=("recorder",), CDPR_SCENARIO="caroca_15kg_ibvs",
+                       CDPR_ARGS="", CDPR_JOIN_TIMEOUT="600", CDPR_REJOIN_TIMEOUT="600") as s:
         monkeypatch.chdir(s.compose_dir)  # identities name secrets/ca.pem relative to the working directory
+
+        def ping(node: str) -> None:
+            ping = subprocess.run([sys.executable, "-m", "cdpr", "ping", "--session", session_id, "--connect",
+                                   s.endpoint, "--zenoh-config", "secrets/observer.json5", "--node", node,
+                                   "--count", "3"], capture_output=True, text=True, timeout=120, check=False)
+            assert ping.returncode == 0, (node, ping.stderr[-2000:])
+            assert json.loads(ping.stdout.strip().splitlines()[-1])["answered"] == 3, node
+
+        held = [n for n in WIRING if n in names and n != "recorder"]
+        assert held == ["clock", "sim", "trajectory", "controller"]
+        for node in held:
+            ping(node)
         with s.open("observer") as z:
             newest = _progress(z, Keys(session_id))
-            deadline = time.monotonic() + 120
+            s.restart("recorder", "recorder")  # the last one: the session starts
+            deadline = time.monotonic() + 300
             while newest[0] < 3000:
                 assert time.monotonic() < deadline, s.procs.report()
                 time.sleep(0.05)
-            for node in (n for n in WIRING if n in names):
-                ping = subprocess.run([sys.executable, "-m", "cdpr", "ping", "--session", session_id, "--connect",
-                                       s.endpoint, "--zenoh-config", "secrets/observer.json5", "--node", node,
-                                       "--count", "3"], capture_output=True, text=True, timeout=120, check=False)
-                assert ping.returncode == 0, (node, ping.stderr[-2000:])
-                assert json.loads(ping.stdout.strip().splitlines()[-1])["answered"] == 3, node
             s.procs.stop("sim", signal.SIGKILL)
+            ping("recorder")
             s.restart("sim", "sim-again")
             s.finish(("clock", "sim-again", "trajectory", "recorder", "controller"))
         assert "joined a session under way: going on from step" in s.procs.log("sim-again")
