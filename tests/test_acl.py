@@ -533,7 +533,8 @@ def test_a_secure_ibvs_session_carries_cameras_ping_a_sim_restart_and_the_record
         def ping(node: str) -> None:
             ping = subprocess.run([sys.executable, "-m", "cdpr", "ping", "--session", session_id, "--connect",
                                    s.endpoint, "--zenoh-config", "secrets/observer.json5", "--node", node,
-                                   "--count", "3"], capture_output=True, text=True, timeout=120, check=False)
+                                   "--count", "3", "--wait", "300"],  # a node just started: waited for
+                                  capture_output=True, text=True, timeout=400, check=False)
             assert ping.returncode == 0, (node, ping.stderr[-2000:])
             assert json.loads(ping.stdout.strip().splitlines()[-1])["answered"] == 3, node
 

@@ -35,7 +35,7 @@ Model and conventions
   if it stops short, or at a residual above ``restart_residual`` (1e-6 m: a wrong local minimum, or noisy
   lengths), the solver starts again from the home pose and from the guess's position at the home orientation,
   then goes on from where the first run stopped, within the same ``max_iterations``, and returns the best
-  (least residual; converged first). From the Mahnke & Caverly protocol's cold guesses (1 m and 2–40° off) this
+  (the least residual). From the Mahnke & Caverly protocol's cold guesses (1 m and 2–40° off) this
   takes CoGiRo's and CAROCA's success from ~97–98 % to ~99.9 % (:mod:`cdpr.tools.bench.fk`). With as many cables
   as DOF the lengths have several poses: the one found is the one the guess leads to.
 * Speed: a warm-started solve is some forty numpy calls on m × 3 arrays (each costs about what its arithmetic
@@ -94,6 +94,15 @@ def _numpy_solve(A: Array, b: Array) -> Array:
 # matrix under np.errstate(invalid="ignore"), where np.linalg.solve raises (the fallback, should numpy move it).
 _solve_linear: Callable[[Array, Array], Array] = getattr(getattr(np.linalg, "_umath_linalg", None), "solve1",
                                                          _numpy_solve)
+
+
+
+def _einsum_vecdot(a: Array, b: Array) -> Array:
+    return np.einsum("ij,ij->i", a, b)
+
+
+# the row-wise dot product: numpy ≥ 2's gufunc, or the same by einsum on numpy 1.26 (the project's floor)
+_vecdot: Callable[[Array, Array], Array] = getattr(np, "vecdot", _einsum_vecdot)
 
 
 class ForwardResult(NamedTuple):
@@ -202,7 +211,7 @@ class ForwardKinematics:
             pose[3] = p
             pose[4:] = R.T
             v = np.dot(self._abm, pose)
-            lf = np.sqrt(np.vecdot(v, v))
+            lf = np.sqrt(_vecdot(v, v))
             return lf, self._a, v, lf
         g = pulley_geometry(self._a, self._pulleys, self._b @ R.T + p)
         return g.lengths, g.tangent_points, g.free_spans, g.free_lengths
@@ -311,7 +320,7 @@ class ForwardKinematics:
         costing about as much as its arithmetic): straight cables' lengths and G = −J inline (:meth:`_lengths`
         and :meth:`_wrench_rows` are the same, and compute them over pulleys), numpy functions in locals."""
         tol, small = self.tol, _SMALL_STEP * math.sqrt(self.tol)
-        dot, sqrt, vecdot, subtract, multiply, divide = np.dot, np.sqrt, np.vecdot, np.subtract, np.multiply, np.divide
+        dot, sqrt, vecdot, subtract, multiply, divide = np.dot, np.sqrt, _vecdot, np.subtract, np.multiply, np.divide
         solve = _solve_linear
         straight = self._pulleys is None
         pose, abm, exits, arm, left3, outer, outer2, columns = (self._pose, self._abm, self._a, self._arm, self._left3,

@@ -239,7 +239,7 @@ def _fk_problem(fk: Any, max_residual: float, max_iterations: int) -> str | None
 @click.option("--csv", "csv_file", default=None, metavar="FILE",
               help="the lengths of many poses, a line each (m, separated by commas or spaces; with --ea the m "
                    "tensions after them; blank lines and # comments skipped; - for stdin): a CSV line per pose on "
-                   "stdout, each solve started from the pose before")
+                   "stdout, each solve started from the last converged pose")
 @click.option("--ea", "ea", type=float, default=None, metavar="N",
               help="every cable's axial stiffness EA, N: correct the lengths for elastic stretch (with --tensions)")
 @click.option("--max-residual", type=float, default=1e-3, show_default=True,
@@ -312,6 +312,8 @@ def _fk_csv(r: Robot, solver: Any, csv_file: str, ea: float | None, angles: str,
         text = sys.stdin.read() if csv_file == "-" else Path(csv_file).read_text(encoding="utf-8")
     except OSError as exc:
         raise InputError(f"--csv: cannot read {csv_file}: {exc.strerror or exc}") from None
+    except UnicodeDecodeError:
+        raise InputError(f"--csv: {csv_file} is not a text file (UTF-8): a line of lengths per pose") from None
     rows: list[tuple[int, np.ndarray]] = []
     per_line = 2 * r.m if ea is not None else r.m
     what = f"{r.m} lengths and {r.m} tensions" if ea is not None else f"{r.m} lengths"
