@@ -17,9 +17,10 @@ import stat
 import subprocess
 import sys
 import time
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Any
 
 import msgpack
 import pytest
@@ -406,11 +407,16 @@ def test_no_identity_publishes_what_the_tables_do_not_give_it(lab_router: LabRou
             keys[data_key(0, qualify(default_namespace(s), t.name), t.ros_type)] = ("ros2", (s, name, None))
     got: queue.SimpleQueue[str] = queue.SimpleQueue()
     with lab_router.open("clock") as listener:  # the clock: it may answer session/info, the marker below
-        subs = [listener.declare_subscriber(k, lambda smp: got.put(smp.payload.to_bytes().decode()))
+        # every callback on the listener's Zenoh thread (indirect=False), in the order its link brings them: one on
+        # a thread of its own could run after the marker's answer
+        def direct(f: Callable[[Any], None]) -> zenoh.handlers.Callback:
+            return zenoh.handlers.Callback(f, indirect=False)
+
+        subs = [listener.declare_subscriber(k, direct(lambda smp: got.put(smp.payload.to_bytes().decode())))
                 for k in ("cdpr/**", "*/cdpr/**", "*/clock/**", "*/tf/**")]
-        subs.append(listener.liveliness().declare_subscriber(
-            "cdpr/**", lambda smp: got.put(f"token {smp.key_expr}") if smp.kind == zenoh.SampleKind.PUT else None))
-        marker = listener.declare_queryable(Keys(a).info, lambda q: q.reply(q.key_expr, b"marker"))
+        subs.append(listener.liveliness().declare_subscriber("cdpr/**", direct(
+            lambda smp: got.put(f"token {smp.key_expr}") if smp.kind == zenoh.SampleKind.PUT else None)))
+        marker = listener.declare_queryable(Keys(a).info, direct(lambda q: q.reply(q.key_expr, b"marker")))
         for identity in identities(lab_router.sessions):
             expected = {f"{identity}|{k}" if kind != "alive" else f"token {k}"
                         for k, (kind, what) in keys.items() if _allowed(identity, kind, what)}
