@@ -61,6 +61,7 @@ from typing import NamedTuple
 import numpy as np
 from numpy.typing import ArrayLike
 
+from cdpr.errors import InputError
 from cdpr.mechanics.rotation import Array, BoolArray
 
 LENGTH_TOL = 1e-10  # m: iterations stop when the end-point residual is below this and the next correction
@@ -107,6 +108,16 @@ def unstretched_lengths(lengths: ArrayLike, tensions: ArrayLike, EA: float) -> A
     The inverse of the straight elastic cable's static law ``f = EA (l − l0)/l0``; for f ≥ 0 it is in (0, l].
     """
     return np.asarray(lengths, dtype=float) * EA / (EA + np.asarray(tensions, dtype=float))
+
+
+def stretched_lengths(unstretched: ArrayLike, tensions: ArrayLike, EA: ArrayLike) -> Array:
+    """The geometric lengths of elastic cables of unstretched lengths l0 under static tensions f: ``l0 (1 + f/EA)``
+    (the inverse of :func:`unstretched_lengths`; ``EA`` one number or one per cable; forward kinematics from a
+    winch's encoders, :mod:`cdpr.mechanics.forward`)."""
+    EA = np.asarray(EA, dtype=float)
+    if not np.all(EA > 0.0):
+        raise InputError("EA: must be > 0")
+    return np.asarray(unstretched, dtype=float) * (1.0 + np.asarray(tensions, dtype=float) / EA)
 
 
 def _arrays(*values: ArrayLike) -> list[Array]:

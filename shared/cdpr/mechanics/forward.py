@@ -46,7 +46,7 @@ Elastic cables (optional): a winch's encoder gives the cable's unstretched lengt
 cable (``cdpr_sim.elastic``, :func:`cdpr.mechanics.catenary.unstretched_lengths`) holds the static tension
 ``f = EA (l − l0) / l0`` at the geometric length ``l`` (the whole length, frame point to platform point, wrap
 included), so given the tensions ``f`` and each cable's ``EA`` the lengths solved for are
-``l = l0 (1 + f / EA)`` (:func:`stretched_lengths`). Sag is not modelled here.
+``l = l0 (1 + f / EA)`` (:func:`cdpr.mechanics.catenary.stretched_lengths`). Sag is not modelled here.
 """
 
 from __future__ import annotations
@@ -59,6 +59,7 @@ import numpy as np
 from numpy.typing import ArrayLike
 
 from cdpr.errors import InputError
+from cdpr.mechanics.catenary import stretched_lengths
 from cdpr.mechanics.pulley import pulley_geometry
 from cdpr.mechanics.robot import Robot
 from cdpr.mechanics.rotation import Array
@@ -115,15 +116,6 @@ class ForwardResult(NamedTuple):
     converged: bool  # the step criterion met within max_iterations (consistent lengths or not)
     residual: float  # max_i |l_i(x) − L_i|, m: ~1e-12 for consistent lengths, the noise's size otherwise
     residual_norm: float  # ‖l(x) − L‖₂, m (the least-squares cost's square root)
-
-
-def stretched_lengths(unstretched: ArrayLike, tensions: ArrayLike, EA: ArrayLike) -> Array:
-    """The geometric lengths of elastic cables of unstretched lengths l0 under static tensions f: ``l0 (1 + f/EA)``
-    (the inverse of :func:`cdpr.mechanics.catenary.unstretched_lengths`; ``EA`` one number or one per cable)."""
-    EA = np.asarray(EA, dtype=float)
-    if not np.all(EA > 0.0):
-        raise InputError("EA: must be > 0")
-    return np.asarray(unstretched, dtype=float) * (1.0 + np.asarray(tensions, dtype=float) / EA)
 
 
 def _rotvec_entries(wx: float, wy: float, wz: float) -> tuple[float, ...]:

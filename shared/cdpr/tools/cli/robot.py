@@ -10,6 +10,8 @@ import click
 import numpy as np
 
 from cdpr.errors import InputError
+from cdpr.mechanics.forward import MAX_ITERATIONS as FK_MAX_ITERATIONS
+from cdpr.mechanics.forward import TOL as FK_TOL
 from cdpr.mechanics.robot import Robot
 from cdpr.tools.cli.group import cli, emit
 
@@ -245,8 +247,9 @@ def _fk_problem(fk: Any, max_residual: float, max_iterations: int) -> str | None
 @click.option("--max-residual", type=float, default=1e-3, show_default=True,
               help="m: lengths that no pose matches closer than this (the largest |l_i(pose) − L_i|) are "
                    "inconsistent")
-@click.option("--tol", type=float, default=1e-9, show_default=True, help="the solver's tolerance, m and rad")
-@click.option("--max-iterations", type=int, default=30, show_default=True, help="the solver's iterations")
+@click.option("--tol", type=float, default=FK_TOL, show_default=True, help="the solver's tolerance, m and rad")
+@click.option("--max-iterations", type=int, default=FK_MAX_ITERATIONS, show_default=True,
+              help="the solver's iterations")
 @_angles_option()
 @_cable_set_option()
 @click.pass_context
