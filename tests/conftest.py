@@ -41,6 +41,24 @@ def pytest_collection_modifyitems(items: list[pytest.Item]) -> None:
     items.sort(key=lambda item: rank.get(item.path.name, len(rank)))  # stable: within a module, its own order
 
 
+def source_copy(tmp_path: Path) -> tuple[Path, dict[str, str]]:
+    """A copy of the repository's ``shared`` and ``services`` (to change as a contributor would), and the environment
+    that runs ``python -m cdpr`` from it."""
+    tree = tmp_path / "tree"
+    for folder in ("shared", "services"):
+        shutil.copytree(ROOT / folder, tree / folder, ignore=shutil.ignore_patterns("__pycache__"))
+    path = [str(tree / "shared"), *(str(p) for p in sorted((tree / "services").glob("*")))]
+    return tree, {**os.environ, "PYTHONPATH": os.pathsep.join(path), "PYTHONDONTWRITEBYTECODE": "1"}
+
+
+def changed_sources(tree: Path) -> list[str]:
+    """The Python files of a :func:`source_copy` that are new or differ from the repository's."""
+    import filecmp
+
+    files = sorted(str(f.relative_to(tree)) for folder in ("shared", "services") for f in (tree / folder).rglob("*.py"))
+    return [f for f in files if not (ROOT / f).exists() or not filecmp.cmp(ROOT / f, tree / f, shallow=False)]
+
+
 def last_json_line(stdout: str) -> dict:
     lines = [ln for ln in stdout.strip().splitlines() if ln.strip()]
     assert lines, "no output on stdout"

@@ -20,6 +20,7 @@ from scipy.integrate import solve_ivp
 from cdpr.config.robot import load_robot
 from cdpr.config.scenario import ElasticSpec, SagSpec, WinchSpec, load_scenario
 from cdpr.errors import InputError
+from cdpr.laws.feedback_linearisation import ControllerCore, stretch_compensated_lengths
 from cdpr.mechanics.catenary import (
     CatenaryError,
     cable_planes,
@@ -36,7 +37,6 @@ from cdpr.mechanics.rotation import rpy_to_matrix
 from cdpr.mechanics.tda import make_tda
 from cdpr.protocol import PROTOCOL_VERSION, Command, ProtocolError
 from cdpr.protocol.session import session_info
-from cdpr_controller.core import ControllerCore, stretch_compensated_lengths
 from cdpr_sim.core import PlatformSim
 from cdpr_sim.elastic import ElasticSim, elastic_tensions
 from cdpr_sim.models import make_sim

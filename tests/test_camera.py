@@ -596,7 +596,7 @@ def test_an_ibvs_answer_is_the_same_when_its_state_comes_again_after_later_frame
     """A sim that went on from a snapshot (after a restart) asks again for states the controller has answered,
     with newer frames already in: each answer is computed from the frame its own state came with, so it is the
     first answer again, bit for bit (the session's states then are an uninterrupted run's)."""
-    from cdpr_controller.ibvs import ibvs_from_scenario
+    from cdpr.laws.ibvs import ibvs_from_scenario
     from cdpr_sim.cameras import CameraSuite
 
     sc = load_scenario("caroca_15kg_ibvs")

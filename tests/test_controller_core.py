@@ -6,10 +6,10 @@ import numpy as np
 from msgspec.structs import replace
 
 from cdpr.config.scenario import load_scenario
+from cdpr.laws.feedback_linearisation import ControllerCore
 from cdpr.mechanics.control import feedback_linearisation
 from cdpr.mechanics.kinematics import inverse_kinematics
 from cdpr.mechanics.rotation import quat_to_matrix
-from cdpr_controller.core import ControllerCore
 from cdpr_sim.core import PlatformSim, state_message
 from cdpr_trajectory.core import setpoint_at
 

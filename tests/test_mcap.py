@@ -118,7 +118,7 @@ def _send(sink: fox.FoxgloveSink, b: Any) -> None:
     sink.setpoints(sp.step, sp.t, sp.pose, sp.scene)
     sink.commands(c.step, c.t, c.kind, c.values, c.feasible, c.status, c.solve_time, c.lag)
     sink.errors(e.step, e.t, e.position, e.orientation)
-    sink.sensors(r.step, r.t, r.encoders, r.load_cells, r.accel, r.gyro)
+    sink.sensors(r.step, r.t, r.columns)
     sink.statuses(b.statuses)
     sink.path(b.path.step, b.path.t, b.path.points)
     sink.end_batch()

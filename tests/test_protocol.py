@@ -67,9 +67,11 @@ def test_a_node_off_the_table_is_refused() -> None:
         wiring.check_node("controller", ("state", "setpoints", "camera"), ("command", "state"))
     with pytest.raises(ValueError, match="subscribes"):
         wiring.check_node("sim", ("tick",), ("state", "sensors"))
-    # an optional topic may be left out (a controller that is no visual servo takes no camera frames), no other
+    # an optional topic may be left out (a controller that is no visual servo takes no camera frames; one fed from
+    # the sensors, no state), no other
     wiring.check_node("controller", ("state", "setpoints"), ("command", "end"))
-    with pytest.raises(ValueError, match=r"subscribes \['camera', 'state'\], .* \(camera optional\)"):
+    wiring.check_node("controller", ("sensors", "setpoints"), ("command", "end"))
+    with pytest.raises(ValueError, match=r"subscribes \['camera', 'state'\], .* \(state, camera, sensors optional\)"):
         wiring.check_node("controller", ("state", "camera"), ("command", "end"))
     with pytest.raises(ValueError, match="not in the wiring table"):
         wiring.check_node("estimator", (), ())

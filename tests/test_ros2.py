@@ -527,7 +527,7 @@ def test_every_topic_on_the_wire_is_what_rosbags_reads(ros2_session: Session) ->
     sequence from 1, timestamp, GID) and stamps: /clock is the state's t, and never goes back."""
     samples: list[tuple[str, bytes, bytes]] = []
     states: list[State] = []
-    ros2_session.start(str(HERE / "scenarios" / "caroca_15kg_sensors.yaml"), 0.3)
+    ros2_session.start(str(HERE / "scenarios" / "caroca_15kg_ros2_sensors.yaml"), 0.3)
     z = ros2_session.zenoh
     assert z is not None
     keep = [
@@ -568,7 +568,7 @@ def test_every_topic_on_the_wire_is_what_rosbags_reads(ros2_session: Session) ->
     distinct = [c for i, c in enumerate(clocks) if i == 0 or c != clocks[i - 1]]
     assert distinct == sorted(ts)  # never going back (a step the clock asked again is stamped the same)
     for name in (*(f"{ns}/{t}" for t in ("joint_states", "platform/pose", "platform/twist", "setpoint/pose", "imu",
-                                          "sensors/joint_states")), "/tf"):
+                                          "sensors/joint_states", "sensors/laser_tracker")), "/tf"):
         stamps = [(h.stamp.sec, h.stamp.nanosec) for h in (
             (m.transforms[0].header if name == "/tf" else m.header) for m, _ in by_topic[name])]
         assert all(a < b for a, b in itertools.pairwise(stamps) if a != b), name
@@ -764,7 +764,7 @@ def test_a_recording_converts_to_a_ros2_bag_with_every_step(tmp_path: Path) -> N
     from cdpr.tools.report import read_recording, state_columns
 
     rrd = tmp_path / "run.rrd"
-    run = subprocess.run([*CDPR, "run", str(HERE / "scenarios" / "caroca_15kg_sensors.yaml"), "--duration", "0.3",
+    run = subprocess.run([*CDPR, "run", str(HERE / "scenarios" / "caroca_15kg_ros2_sensors.yaml"), "--duration", "0.3",
                           "--in-process", "--quiet", "--rrd", str(rrd)], capture_output=True, text=True, timeout=300)
     assert run.returncode == 0, run.stderr[-2000:]
     conv = subprocess.run([*CDPR, "convert", str(rrd), "--to", "rosbag2"], capture_output=True, text=True,
@@ -810,6 +810,13 @@ def test_a_recording_converts_to_a_ros2_bag_with_every_step(tmp_path: Path) -> N
     assert [m.effort.tolist() for m in got["/cdpr/sensors/joint_states"]] == loads.values.tolist()
     assert len(got["/cdpr/setpoint/pose"]) == len(data.get(recording.DESIRED_POSITION).step)
     (info,) = got["/cdpr/session_info"]
-    assert '"scenario": "caroca_15kg_sensors"' in info.data
+    assert '"scenario": "caroca_15kg_ros2_sensors"' in info.data
+    tracker = data.get("sensors/laser_tracker")  # every 4 steps (250 Hz), 2 steps late, stamped when measured
+    assert len(tracker.step) >= 70
+    assert (tracker.step % 4 == 2).all()
+    points = got["/cdpr/sensors/laser_tracker"]
+    assert [[m.point.x, m.point.y, m.point.z] for m in points] == tracker.values.tolist()
+    assert [m.header.stamp.nanosec for m in points] == ((tracker.step - 2) * 1_000_000).tolist()
     assert set(got) == {"/clock", "/tf", *(f"/cdpr/{t}" for t in ("joint_states", "platform/pose", "platform/twist",
-                        "setpoint/pose", "joint_commands", "imu", "sensors/joint_states", "session_info"))}
+                        "setpoint/pose", "joint_commands", "imu", "sensors/joint_states", "sensors/laser_tracker",
+                        "session_info"))}

@@ -58,9 +58,9 @@ from scipy.integrate import solve_ivp
 from scipy.linalg import expm
 
 from cdpr.config.scenario import load_scenario
+from cdpr.laws.feedback_linearisation import ControllerCore
 from cdpr.mechanics.robot import Robot
 from cdpr.mechanics.rotation import matrix_to_rotvec, rotvec_to_matrix
-from cdpr_controller.core import ControllerCore
 from cdpr_sim.core import PlatformSim, state_message
 from cdpr_trajectory.core import setpoint_at
 

@@ -18,9 +18,9 @@ from typing import Any
 import pytest
 
 from cdpr.config.scenario import CABLE_MODELS, WINCH_MODELS, load_scenario
+from cdpr.laws.feedback_linearisation import ControllerCore
 from cdpr.protocol import State
 from cdpr.protocol.streams import STATE_COLUMNS, Column
-from cdpr_controller.core import ControllerCore
 from cdpr_sim import core
 from cdpr_sim.core import MODEL_COLUMNS, STAMPED_COLUMNS, build, state_message
 from cdpr_sim.models import SIM_MODELS, make_sim

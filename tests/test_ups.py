@@ -23,10 +23,10 @@ import pytest
 
 from cdpr.config.robot import load_robot
 from cdpr.config.scenario import load_scenario
+from cdpr.laws.feedback_linearisation import ControllerCore
 from cdpr.mechanics.dynamics import forward_dynamics, mass_matrix
 from cdpr.mechanics.kinematics import inverse_kinematics
 from cdpr.mechanics.robot import Robot
-from cdpr_controller.core import ControllerCore
 from cdpr_sim.core import PlatformSim, PlatformState, StepReport, state_message
 from cdpr_sim.models import make_sim
 from cdpr_sim.ups import LINK_MASS, UpsSim

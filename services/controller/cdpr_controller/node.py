@@ -1,27 +1,30 @@
 """The controller node: answers every ``sim/state`` k with one ``controller/command`` k.
 
-It waits until it holds both the state and the setpoint of the same step, computes the tensions with
-:class:`cdpr_controller.core.ControllerCore` and publishes them. A repeated state (the clock asked for a
-resend) is answered again.
+Its law is the scenario's ``controller.law``, a row of :data:`cdpr.laws.LAWS`: it waits until it holds what the
+law needs for state k — the setpoint of the same step, or the camera frame the state's step calls for — computes
+the tensions (or lengths) with the law's core and publishes them. A repeated state (the clock asked for a resend)
+is answered again.
 """
 
 from __future__ import annotations
 
 import time
+from collections import Counter
 from typing import Any
 
 import numpy as np
 import zenoh
 
 from cdpr.config.scenario import Scenario
+from cdpr.laws import LAWS, FrameLaw, LawCore
+from cdpr.laws.base import warm_up
 from cdpr.mechanics.rotation import matrix_to_quat
 from cdpr.mechanics.tda import TdaResult
 from cdpr.protocol import Command, Keys, Setpoint, State
 from cdpr.protocol.pairing import Pairing
+from cdpr.runtime.feedback import SensorFeedback
 from cdpr.runtime.service import Node, pair
 from cdpr.runtime.transport import Event, Inbox, log, may_be_denied
-from cdpr_controller.core import ControllerCore
-from cdpr_controller.ibvs import frame_needed, ibvs_from_scenario
 
 
 class ControllerNode(Node):
@@ -29,25 +32,31 @@ class ControllerNode(Node):
     direct = True  # handled on Zenoh's receive thread: no hand-off between a message and its answer
 
     @classmethod
-    def make_core(cls, scenario: Scenario) -> ControllerCore:
-        """(state k, setpoint k) → tensions k: ``.step(state, setpoint)``."""
-        return ControllerCore.from_scenario(scenario)
+    def make_core(cls, scenario: Scenario) -> LawCore:
+        """The scenario's law's core: ``.command(state k, setpoint k)`` → (distribution k, lengths k or None)."""
+        return LAWS[scenario.spec.controller.law].build(scenario)
 
     def __init__(self, scenario: Scenario, keys: Keys) -> None:
         super().__init__(keys)
-        # image-based visual servoing (controller.law: ibvs): the camera's frames instead of the state's pose
-        self.ibvs = ibvs_from_scenario(scenario) if scenario.spec.controller.law == "ibvs" else None
-        if self.ibvs is None:
-            self.leave_out("camera")
-        self.waiting: State | None = None  # IBVS: a state whose frame has not come yet
-        self.frames_given_up = -1  # IBVS: the exposure of the last frame given up for lost
+        self.law = LAWS[scenario.spec.controller.law]
+        if "camera" not in self.law.inputs:
+            self.leave_out("camera")  # (the setpoints come whatever the law: a law without them ignores them)
+        # controller.feedback: sensors: the law is fed an estimate from sim/sensors; sim/state never comes
+        self.feedback = SensorFeedback.from_scenario(scenario) if scenario.spec.controller.feedback == "sensors" \
+            else None
+        self.leave_out("state" if self.feedback is not None else "sensors")
+        self.received: Counter[str] = Counter()  # messages taken in, by topic (the log's last line)
         self.total_steps = scenario.total_steps
         self.core = self.make_core(scenario)
+        # a law of camera frames (IBVS): the frames in, states answered once the frame they call for has come
+        self.frames: FrameLaw | None = self.core if "camera" in self.law.inputs else None  # type: ignore[assignment]
+        self.waiting: State | None = None  # a state whose frame has not come yet
+        self.frames_given_up = -1  # the exposure of the last frame given up for lost
         # held at the start pose, at rest: about what step 0 brings
         pose = (*scenario.initial_position.tolist(), *matrix_to_quat(scenario.initial_rotation).tolist())
         m = scenario.robot.m
-        self.core.warm_up(State(0, 0.0, pose, (0.0,) * 6, (1.0,) * m, (0.0,) * m),
-                          Setpoint(0, 0.0, pose, (0.0,) * 6, (0.0,) * 6))
+        warm_up(self.core, State(0, 0.0, pose, (0.0,) * 6, (1.0,) * m, (0.0,) * m),
+                Setpoint(0, 0.0, pose, (0.0,) * 6, (0.0,) * 6))
         self.m = scenario.robot.m
         self.pairing = Pairing()
         self.answered = -1
@@ -61,20 +70,36 @@ class ControllerNode(Node):
         return []
 
     def handle(self, event: Event) -> None:
-        if self.ibvs is not None:
-            self.handle_ibvs(event)
+        self.received[event.topic] += 1
+        if self.frames is not None:
+            self.handle_frames(self.frames, event)
+        elif event.topic == "sensors":
+            self.handle_sensors(event)
         elif (due := pair(self, self.pairing, event, self.m)) is not None:
             self.answer(*due)
 
-    def handle_ibvs(self, event: Event) -> None:
-        """IBVS: state k is answered once the newest frame out by step k is in (whatever the order the frames and
-        the states arrive in: the answers are the same in every run); the setpoints are not used."""
-        assert self.ibvs is not None
+    def handle_sensors(self, event: Event) -> None:
+        """controller.feedback: sensors: the reading's estimated state stands for the state of its step."""
+        assert self.feedback is not None
+        reading = self.decode(event, self.m)
+        if reading is None:
+            return
+        state = self.feedback.state(reading)
+        if state is None:
+            self.count("sensors_without_encoders")
+            self.warn("sensors", f"step {reading.step}: a reading without encoder lengths: no state to answer")
+            return
+        if (due := self.pairing.on_state(state)) is not None:
+            self.answer(*due)
+
+    def handle_frames(self, law: FrameLaw, event: Event) -> None:
+        """A law of camera frames: state k is answered once the newest frame out by step k is in (whatever the
+        order the frames and the states arrive in: the answers are the same in every run)."""
         if event.topic == "camera":
             frame = self.decode(event)
-            if frame is None or frame.camera != self.ibvs.camera.name:
+            if frame is None or frame.camera != law.camera_name:
                 return
-            self.ibvs.on_frame(frame)
+            law.on_frame(frame)
         elif event.topic == "state":
             if (state := self.decode(event, self.m)) is None:
                 return
@@ -86,28 +111,22 @@ class ControllerNode(Node):
             if lost and state.step < self.total_steps:
                 self.count("camera_frames_missing")
                 self.warn("frames", f"step {state.step}: the frame it needs has not come; answered without it ("
-                          f"{may_be_denied(self.keys.topic('camera', self.ibvs.camera.name))})")
-                self.frames_given_up = frame_needed(self.ibvs.camera, state.step) or 0  # not waited for again
-                self.answer_ibvs(state)
+                          f"{may_be_denied(self.keys.topic('camera', law.camera_name))})")
+                self.frames_given_up = law.frame_needed(state.step) or 0  # not waited for again
+                self.answer(state, None)
                 return
         else:
             return
         state = self.waiting
         if state is None or state.step >= self.total_steps:
             return  # (the session's last state awaits no command)
-        needed = frame_needed(self.ibvs.camera, state.step)
-        if needed is not None and self.ibvs.frame_step < needed and needed > self.frames_given_up:
+        needed = law.frame_needed(state.step)
+        if needed is not None and law.frame_step < needed and needed > self.frames_given_up:
             return  # its frame is on its way
-        self.answer_ibvs(state)
+        self.answer(state, None)
 
-    def answer_ibvs(self, state: State) -> None:
-        assert self.ibvs is not None
+    def answer(self, state: State, setpoint: Setpoint | None) -> None:
         self.waiting = None
-        start = time.perf_counter()
-        result = self.ibvs.step(state.step)
-        self.send(state, result, None, time.perf_counter() - start)
-
-    def answer(self, state: State, setpoint: Setpoint) -> None:
         start = time.perf_counter()
         result, lengths = self.core.command(state, setpoint)
         self.send(state, result, lengths, time.perf_counter() - start)
@@ -130,7 +149,7 @@ class ControllerNode(Node):
         self.pairing.done(state.step)
 
     def close(self) -> None:
-        servo = "" if self.ibvs is None else (f"; IBVS: the last frame (step {self.ibvs.frame_step}) "
-                                              f"{self.ibvs.feature_error:.3f} px RMS from the desired image")
+        summary = self.law.summary(self.core)
+        received = ", ".join(f"{n} {topic}" for topic, n in sorted(self.received.items()))
         log(self.name, f"answered up to step {self.pairing.answered}; infeasible distributions: {self.infeasible}"
-            + servo)
+            + (f"; {summary}" if summary else "") + f"; received: {received or 'nothing'}")

@@ -24,6 +24,7 @@ from numpy.typing import ArrayLike, NDArray
 
 from cdpr.protocol import Command, Sensors, Setpoint, State, Status
 from cdpr.protocol.streams import STATE_COLUMNS
+from cdpr.sensors import SENSOR_COLUMNS
 
 F64 = NDArray[np.float64]
 I64 = NDArray[np.int64]
@@ -81,10 +82,7 @@ class CommandRows:
 class SensorRows:
     step: I64
     t: F64
-    encoders: F64  # (n, m)
-    load_cells: F64  # (n, m)
-    accel: F64  # (n, 3)
-    gyro: F64  # (n, 3)
+    columns: dict[str, F64]  # each channel of SENSOR_COLUMNS some reading has: (n, width), NaN where absent
 
 
 @dataclass(frozen=True)
@@ -320,10 +318,9 @@ class RecorderCore:
         sensor_rows = SensorRows(
             step=_ids([r.step for r in sensors]),
             t=np.asarray([r.t for r in sensors], dtype=float),
-            encoders=_rows([r.encoders for r in sensors], m),
-            load_cells=_rows([r.load_cells for r in sensors], m),
-            accel=_rows([r.accel for r in sensors], 3),
-            gyro=_rows([r.gyro for r in sensors], 3),
+            columns={c.name: _rows([(v if (v := r.get(c.name)) is not None else (np.nan,) * c.size(m))
+                                    for r in sensors], c.size(m))
+                     for c in SENSOR_COLUMNS if any(r.get(c.name) is not None for r in sensors)},
         )
         actual = _rows([s.pose for s, _ in pairs], 7)
         desired = _rows([d.pose for _, d in pairs], 7)

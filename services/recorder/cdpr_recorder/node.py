@@ -32,6 +32,7 @@ from cdpr.protocol.streams import STATE, STATE_COLUMNS
 from cdpr.runtime.options import RECORDER_OPTIONS, add_options
 from cdpr.runtime.service import Node
 from cdpr.runtime.transport import Event, RateLimitedLog, log
+from cdpr.sensors import SENSOR_COLUMNS
 from cdpr_recorder.core import Batch, RecorderCore, RecorderSettings
 
 if TYPE_CHECKING:
@@ -241,7 +242,7 @@ class RecorderNode(Node):
         e = b.errors
         fox.errors(e.step, e.t, e.position, e.orientation)
         r = b.sensors
-        fox.sensors(r.step, r.t, r.encoders, r.load_cells, r.accel, r.gyro)
+        fox.sensors(r.step, r.t, r.columns)
         fox.statuses(b.statuses)
         fox.path(b.path.step, b.path.t, b.path.points)
         fox.end_batch()
@@ -327,11 +328,10 @@ class RecorderNode(Node):
                 [f"{r.state}: {r.reason}" if r.reason else r.state for r in changed],
             )
         r = b.sensors
-        if len(r.step):
-            recording.send_scalars(rec, recording.SENSOR_ENCODERS, r.step, r.t, r.encoders)
-            recording.send_scalars(rec, recording.SENSOR_LOAD_CELLS, r.step, r.t, r.load_cells)
-            recording.send_scalars(rec, recording.SENSOR_ACCEL, r.step, r.t, r.accel)
-            recording.send_scalars(rec, recording.SENSOR_GYRO, r.step, r.t, r.gyro)
+        for col in SENSOR_COLUMNS:  # each channel's series (cdpr.sensors), at the steps that have a reading
+            if col.name in r.columns:
+                has = ~np.isnan(r.columns[col.name][:, 0])
+                recording.send_columns_series(rec, (col,), r.step[has], r.t[has], {col.name: r.columns[col.name][has]})
         recording.send_path(rec, b.path.step, b.path.t, b.path.points)
 
     def send_frames(self) -> None:

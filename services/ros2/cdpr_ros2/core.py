@@ -42,6 +42,7 @@ from cdpr.ros2.topics import (
     Payloads,
     cable_names,
     info_message,
+    sensor_delays,
     sensor_messages,
     setpoint_messages,
     state_messages,
@@ -69,6 +70,7 @@ class Bridge:
         self.names = cable_names(self.m)
         self._order = {name: i for i, name in enumerate(self.names)}
         self.info = {"v": PROTOCOL_VERSION, **info}
+        self.delays = sensor_delays(info)  # each sensor kind's latency: its messages are stamped when measured
         self.free = False
         self.newest: State | None = None  # the last state published with its setpoint
         self.pending: OrderedDict[tuple[int, int], State] = OrderedDict()  # published, not answered: by stamp
@@ -130,9 +132,9 @@ class Bridge:
         return setpoint_messages(setpoint.t, setpoint.pose, setpoint.twist, setpoint.accel, wanted)
 
     def sensor_messages(self, sensors: Sensors) -> Payloads:
-        """The IMU (platform frame) and the winches' encoders (position) and load cells (effort)."""
-        return sensor_messages(sensors.t, self.names, sensors.encoders, sensors.load_cells, sensors.accel,
-                               sensors.gyro)
+        """Each sensor kind's topics (:func:`cdpr.ros2.topics.sensor_messages`): the IMU (platform frame), the
+        winches' encoders (position) and load cells (effort), a laser tracker's point, …"""
+        return sensor_messages(sensors.t, self.names, sensors.readings, self.delays)
 
     def command(self, topic: str, payload: bytes) -> Command:
         """A ROS 2 command as the session's Command for the state it answers (module docstring); RosCommandError.

@@ -55,7 +55,7 @@ from cdpr_sim.cameras import CameraSuite
 from cdpr_sim.hold import Applied, CommandHold, LatencyModel, StaticPolicy
 from cdpr_sim.models import make_sim
 from cdpr_sim.render import RenderProcess
-from cdpr_sim.sensors import SensorConfig, SensorSuite
+from cdpr_sim.sensors import SensorSuite
 
 
 class SimNode(Node):
@@ -64,11 +64,11 @@ class SimNode(Node):
 
     make_core = staticmethod(make_sim)  # the model: .step(values), .message(clamped) (sim/state), .state()
 
-    @staticmethod
-    def make_sensors(scenario: Scenario) -> SensorSuite | None:
+    @classmethod
+    def make_sensors(cls, scenario: Scenario) -> SensorSuite | None:
         """The scenario's sensors (``sim.sensors``; None without), to ``read(model)`` once per step."""
         spec = scenario.spec.sim.sensors
-        return None if spec is None else SensorSuite(SensorConfig.from_spec(spec, scenario.robot.m), scenario.dt)
+        return None if spec is None else SensorSuite(spec, scenario.robot, scenario.dt)
 
     def __init__(self, scenario: Scenario, keys: Keys) -> None:
         super().__init__(keys)
@@ -246,8 +246,7 @@ class SimNode(Node):
             return None
         snapshot = self.sim.snapshot()
         snapshot["clamped"] = self.clamped
-        previous = None if self.sensors is None else self.sensors.previous
-        snapshot["sensors_previous"] = None if previous is None else [previous[0], previous[1].tolist()]
+        snapshot.update({"sensors_previous": None} if self.sensors is None else self.sensors.snapshot())
         return Resume(self.step, self.scenario.spec.sim.cable_model, snapshot)
 
     def on_resume(self, resume: Resume) -> None:
@@ -261,10 +260,9 @@ class SimNode(Node):
             if resume.snapshot.get("step") != resume.step:
                 raise ValueError("its step and its snapshot's differ")
             self.sim.restore(resume.snapshot)
-            clamped, previous = resume.snapshot.get("clamped", 0), resume.snapshot.get("sensors_previous")
-            self.clamped = int(clamped)
+            self.clamped = int(resume.snapshot.get("clamped", 0))
             if self.sensors is not None:
-                self.sensors.previous = None if previous is None else (int(previous[0]), np.array(previous[1]))
+                self.sensors.restore(resume.snapshot)
         except (ValueError, TypeError, IndexError) as exc:
             self.sim = make_sim(self.scenario)  # from the start: the clock sees a state that goes back, says so
             self.count("bad_resume")

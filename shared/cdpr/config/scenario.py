@@ -10,13 +10,14 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, Literal
+from typing import Annotated, Any, Literal
 
 import numpy as np
 from pydantic import (
     Field,
     FiniteFloat,
     PositiveFloat,
+    create_model,
     field_validator,
     model_validator,
 )
@@ -26,12 +27,14 @@ from cdpr.config.loading import Strict, parse_model, read_yaml, resolve, shipped
 from cdpr.config.robot import load_robot
 from cdpr.config.trajectory import TrajectorySpec
 from cdpr.errors import InputError
+from cdpr.laws import LAWS
 from cdpr.mechanics.camera import Camera
 from cdpr.mechanics.control import Gains, Variant
 from cdpr.mechanics.outputs import CommandKind
 from cdpr.mechanics.robot import GRAVITY, Robot
 from cdpr.mechanics.rotation import matrix_to_rotvec, rpy_to_matrix
 from cdpr.mechanics.trajectory import PlatformPoint, Trajectory
+from cdpr.sensors import COMMON, SENSOR_KINDS, Param, SensorKind
 
 
 class PlatformOverride(Strict):
@@ -71,30 +74,16 @@ class TdaSpec(Strict):
 Gain = FiniteFloat | list[FiniteFloat]
 
 
-class GoalSpec(Strict):
-    position: list[FiniteFloat] = Field(min_length=3, max_length=3, description="the platform frame's origin, m")
-    rpy: list[FiniteFloat] = Field(default_factory=lambda: [0.0, 0.0, 0.0], min_length=3, max_length=3,
-                                   description="roll, pitch, yaw, rad")
+class ControllerBase(Strict):
+    """The control law and the tension distribution; a law with parameters of its own has a section named after it
+    (:data:`cdpr.laws.LAWS`)."""
 
-
-class IbvsSpec(Strict):
-    """Image-based visual servoing (cdpr_controller.ibvs): a camera of sim.cameras and the image to reach."""
-
-    camera: str = Field(description="the camera (on the frame, looking at markers on the platform)")
-    gain: PositiveFloat = Field(1.0, description="λ, 1/s: the feature error decays as exp(−λ t)")
-    kv: PositiveFloat = Field(10.0, description="1/s: the gain of the loop that servoes the platform's twist")
-    max_speed: PositiveFloat = Field(0.5, description="m/s: the IBVS twist's linear part at most (far from the goal "
-                                     "the law alone would ask for metres per second)")
-    max_rate: PositiveFloat = Field(0.5, description="rad/s: its angular part at most")
-    goal: GoalSpec | None = Field(None, description="the pose whose image is the target (default: the "
-                                  "trajectory's last pose)")
-
-
-class ControllerSpec(Strict):
-    law: Literal["feedback_linearisation", "ibvs"] = Field(
-        "feedback_linearisation", description="feedback_linearisation (eq. 6–7, the setpoints) or ibvs (image-based "
-        "visual servoing: a camera's features only)")
-    ibvs: IbvsSpec | None = Field(None, description="law ibvs: its camera and gains")
+    law: str = Field("feedback_linearisation", description="; ".join(f"{law.name}: {law.doc}"
+                                                                     for law in LAWS.values()))
+    feedback: Literal["state", "sensors"] = Field(
+        "state", description="what the law is fed: state (sim/state, the truth) or sensors (an estimate of the pose "
+        "and twist from sim/sensors — the encoders through forward kinematics, fused with the IMU in a Kalman "
+        "filter, cdpr.mechanics.estimation —: the controller never reads sim/state)")
     variant: Literal["6dof", "3dof"] = Field("6dof", description="6dof: position and orientation (eq. 7); 3dof: "
                                              "position only, the paper's variant")
     kp: Gain = Field(1500.0, description="proportional gain, 1/s²: one number, or [x, y, z, rx, ry, rz]")
@@ -114,6 +103,24 @@ class ControllerSpec(Strict):
         if np.any(np.asarray(v) < 0):
             raise ValueError("gains must be >= 0")
         return v
+
+    @field_validator("law")
+    @classmethod
+    def _known_law(cls, v: str) -> str:
+        if v not in LAWS:
+            raise ValueError(f"unknown control law {v!r} (known: {', '.join(LAWS)})")
+        return v
+
+    def section(self, name: str) -> Any:
+        """Law ``name``'s section (None: not given)."""
+        return getattr(self, name, None)
+
+
+_LAW_SECTIONS: dict[str, Any] = {law.name: (law.section | None, Field(None, description=f"law {law.name}: its "
+                                                                   "parameters"))
+                                 for law in LAWS.values() if law.section is not None}
+ControllerSpec: type[ControllerBase] = create_model(  # the laws' sections follow the table (cdpr.laws)
+    "ControllerSpec", __base__=ControllerBase, __doc__=ControllerBase.__doc__, **_LAW_SECTIONS)
 
 
 class StretchSpec(Strict):
@@ -152,41 +159,44 @@ class WinchSpec(Strict):
     kd: FiniteFloat = Field(1.0, ge=0.0, description="N·m·s/rad")
 
 
-Bias = FiniteFloat | list[FiniteFloat]
+class SensorsBase(Strict):
+    """Simulated sensors, published on sim/sensors (cdpr_sim.sensors): one entry per kind of
+    :data:`cdpr.sensors.SENSOR_KINDS` (a kind with ``default`` is there unless set to null)."""
+
+    seed: int = Field(0, ge=0, description="seed of the noise (a reading is a function of seed, sensor and step)")
+
+    def kinds(self) -> list[tuple[SensorKind, Any]]:
+        """The kinds configured, in the table's order, each with its entry."""
+        return [(k, spec) for k in SENSOR_KINDS if (spec := getattr(self, k.name)) is not None]
 
 
-class EncoderSpec(Strict):
-    resolution: FiniteFloat = Field(0.0, ge=0.0, description="quantisation step, m (0: none)")
-    sigma: FiniteFloat = Field(0.0, ge=0.0, description="white noise, m")
+_THREE = Annotated[list[FiniteFloat], Field(min_length=3, max_length=3)]
+_PARAM_TYPES: dict[str, Any] = {"number": FiniteFloat, "vec3": _THREE, "bias": FiniteFloat | list[FiniteFloat],
+                                "bias3": FiniteFloat | _THREE}
 
 
-class LoadCellSpec(Strict):
-    sigma: FiniteFloat = Field(0.0, ge=0.0, description="white noise, N")
-    bias: Bias = Field(0.0, description="N: one number for every cell or one per cable")
+def _param_field(p: Param) -> Any:
+    bounds = {k: v for k in ("ge", "gt", "le", "lt") if (v := getattr(p, k)) is not None}
+    return (_PARAM_TYPES[p.kind], Field(p.default, description=p.doc, **bounds))
 
 
-class ImuSpec(Strict):
-    accel_sigma: FiniteFloat = Field(0.0, ge=0.0, description="m/s²")
-    accel_bias: Bias = Field(0.0, description="m/s², body frame: one number or [x, y, z]")
-    gyro_sigma: FiniteFloat = Field(0.0, ge=0.0, description="rad/s")
-    gyro_bias: Bias = Field(0.0, description="rad/s, body frame: one number or [x, y, z]")
-
-    @field_validator("accel_bias", "gyro_bias")
-    @classmethod
-    def _three(cls, v: float | list[float]) -> float | list[float]:
-        if isinstance(v, list) and len(v) != 3:
-            raise ValueError(f"a bias is one number or 3 numbers [x, y, z], got {len(v)}")
-        return v
+def _kind_model(kind: SensorKind) -> type[Strict]:
+    """The model of a kind's entry ``sim.sensors.<kind>``: :data:`cdpr.sensors.COMMON`'s keys and its own."""
+    name = "".join(part.title() for part in kind.name.split("_")) + "Spec"
+    return create_model(name, __base__=Strict, __doc__=kind.doc,
+                        **{p.name: _param_field(p) for p in (*COMMON, *kind.params)})
 
 
-class SensorsSpec(Strict):
-    """Simulated sensors, published on sim/sensors (cdpr_sim.sensors)."""
+def _kind_field(kind: SensorKind) -> Any:
+    model = _kind_model(kind)
+    if kind.default:
+        return (model | None, Field(default_factory=model, description=kind.doc))
+    return (model | None, Field(None, description=f"{kind.doc} (none by default)"))
 
-    seed: int = Field(0, ge=0, description="seed of the noise (a reading is a function of seed and step)")
-    encoders: EncoderSpec = Field(default_factory=lambda: EncoderSpec(), description="the winches' cable lengths")
-    load_cells: LoadCellSpec = Field(default_factory=lambda: LoadCellSpec(), description="the cables' tensions")
-    imu: ImuSpec = Field(default_factory=lambda: ImuSpec(), description="the platform's specific force and angular "
-                         "rate, body frame")
+
+SensorsSpec: type[SensorsBase] = create_model(  # the sections follow the table (cdpr.sensors)
+    "SensorsSpec", __base__=SensorsBase, __doc__=SensorsBase.__doc__,
+    **{k.name: _kind_field(k) for k in SENSOR_KINDS})
 
 
 WatchdogPolicy = Literal["hold", "static", "abort"]
@@ -325,27 +335,23 @@ class ScenarioSpec(Strict):
                              f"(winch-driven cables), not {self.sim.cable_model}")
         for camera in self.sim.cameras:
             check_rate(camera, self.dt)
-        ctrl = self.controller
-        if ctrl.law == "ibvs":
-            if ctrl.ibvs is None:
-                raise ValueError("controller.ibvs: law ibvs needs its section (camera, gain, kv)")
-            cams = {c.name: c for c in self.sim.cameras}
-            cam = cams.get(ctrl.ibvs.camera)
-            if cam is None:
-                raise ValueError(f"controller.ibvs.camera: no camera {ctrl.ibvs.camera!r} in sim.cameras "
-                                 f"(there: {', '.join(cams) or 'none'})")
-            if cam.mount.body != "frame" or cam.markers.frame != "platform":
-                raise ValueError(f"controller.ibvs.camera: {cam.name} must be on the frame looking at markers on the "
-                                 "platform (eye-to-hand)")
-            if len(cam.markers.points) < 3:
-                raise ValueError(f"controller.ibvs.camera: {cam.name} has {len(cam.markers.points)} marker(s); the "
-                                 "platform's pose needs 3 or more")
-            if ctrl.variant != "6dof" or ctrl.output != "tensions":
-                raise ValueError("controller.law: ibvs commands tensions for all 6 degrees of freedom (variant 6dof, "
-                                 "output tensions)")
-        elif ctrl.ibvs is not None:
-            raise ValueError("controller.ibvs: used by law ibvs only (this controller's law is "
-                             "feedback_linearisation)")
+        ctrl, law = self.controller, LAWS[self.controller.law]
+        for other in LAWS.values():
+            if other is not law and other.section is not None and ctrl.section(other.name) is not None:
+                raise ValueError(f"controller.{other.name}: used by law {other.name} only (this controller's law is "
+                                 f"{law.name})")
+        if law.section is not None:
+            section = ctrl.section(law.name)
+            if section is None:
+                raise ValueError(f"controller.{law.name}: law {law.name} needs its section")
+            law.check(section, self)
+        if ctrl.feedback == "sensors":
+            if "setpoints" not in law.inputs:
+                raise ValueError(f"controller.feedback: sensors feeds a law of states; law {law.name} reads "
+                                 f"{', '.join(law.inputs)}")
+            if self.sim.sensors is None or getattr(self.sim.sensors, "encoders", None) is None:
+                raise ValueError("controller.feedback: sensors needs sim.sensors.encoders (the estimate's pose is "
+                                 "their forward kinematics)")
         latency, watchdog = self.sim.command_latency, self.sim.watchdog
         if latency is not None:
             most = latency.steps + latency.jitter
@@ -423,10 +429,12 @@ def scenario_from_spec(spec: ScenarioSpec, where: str, base_dir: Path | None = N
         raise InputError(f"{where}: limits: tmin ({tmin[i]:g}) must not exceed tmax ({tmax[i]:g})"
                          + ("" if robot.uniform_limits else f" (cable {i})"))
     robot = robot.replace(tmin=tmin, tmax=tmax)
-    bias = spec.sim.sensors.load_cells.bias if spec.sim.sensors is not None else 0.0
-    if isinstance(bias, list) and len(bias) != robot.m:
-        raise InputError(f"{where}: sim.sensors.load_cells.bias: expected one number or {robot.m} (one per "
-                         f"cable), got {len(bias)}")
+    for kind, entry in () if spec.sim.sensors is None else spec.sim.sensors.kinds():
+        if (problem := kind.check(entry, robot.m)) is not None:
+            raise InputError(f"{where}: sim.sensors.{kind.name}.{problem}")
+    if spec.controller.feedback == "sensors" and robot.mode != "spatial":
+        raise InputError(f"{where}: controller.feedback: sensors needs a spatial robot (its pose from the encoders' "
+                         f"forward kinematics); {robot.name} is {robot.mode}")
     try:
         trajectory = spec.trajectory.build()
         if np.any(robot.com_offset != 0.0):  # waypoints of the platform frame: the COM follows its own path

@@ -3,9 +3,10 @@
 One env step is one control period: ``control_every`` sim steps (default 10 at the scenario's dt). The
 policy's action is held over the period; what it means depends on ``action``:
 
-* ``residual`` (default): a wrench added to the feedback-linearisation law's (eq. 6–7), which runs every
-  sim step as the session's controller does, before the scenario's tension distribution. An action of 0
-  is the scenario's own controller, step for step.
+* ``residual`` (default): a wrench added to the scenario's law's (``controller.law``, :data:`cdpr.laws.LAWS`: any
+  law of states and setpoints, feedback linearisation by default), which runs every sim step as the session's
+  controller does, before the scenario's tension distribution. An action of 0 is the scenario's own controller,
+  step for step.
 * ``wrench``: the wrench the cables must exert (on top of the platform's weight), distributed once per
   env step by the scenario's tension distribution at the period's first state; the tensions are held.
 * ``tensions``: the m tensions themselves, [-1, 1] → [tmin, tmax], held.
@@ -32,6 +33,7 @@ from cdpr.config.scenario import Scenario, load_scenario
 from cdpr.errors import InputError
 from cdpr.gym.loop import LocalLoop, Reached, SessionLoop
 from cdpr.gym.task import ActionKind, Limits, RewardWeights, Task
+from cdpr.laws import LAWS
 from cdpr.mechanics.kinematics import WrenchMatrix
 from cdpr.mechanics.rotation import Array, quat_to_matrix
 from cdpr.mechanics.tda import TdaResult
@@ -97,9 +99,10 @@ class TrackEnv(gym.Env[np.ndarray, np.ndarray]):
     @staticmethod
     def _check_scenario(scenario: Scenario) -> None:
         spec = scenario.spec
-        if spec.controller.law != "feedback_linearisation":
-            raise InputError(f"scenario {scenario.name}: controller.law {spec.controller.law} — the environment's "
-                             f"base law is feedback linearisation")
+        law = LAWS[spec.controller.law]
+        if set(law.inputs) - {"setpoints"}:
+            raise InputError(f"scenario {scenario.name}: controller.law {law.name} — the environment gives its base "
+                             f"law states and setpoints, not {', '.join(sorted(set(law.inputs) - {'setpoints'}))}")
         if spec.sim.command_latency is not None:
             raise InputError(f"scenario {scenario.name}: sim.command_latency — the environment holds its action "
                              f"over control_every steps instead (a latency of its own is not modelled)")
@@ -108,7 +111,7 @@ class TrackEnv(gym.Env[np.ndarray, np.ndarray]):
     def reset(self, *, seed: int | None = None,
               options: dict[str, Any] | None = None) -> tuple[np.ndarray, dict[str, Any]]:
         super().reset(seed=seed)
-        controller = node_class("controller")  # its core: the feedback-linearisation law and the distribution
+        controller = node_class("controller")  # its core: the scenario's law (cdpr.laws) and the distribution
         if self.randomizer is not None:
             self.plant, model = self.randomizer.draw(int(self.np_random.integers(2**31 - 1)))
             self.controller = controller.make_core(model)
@@ -116,7 +119,7 @@ class TrackEnv(gym.Env[np.ndarray, np.ndarray]):
         elif self.controller is None:
             self.controller = controller.make_core(self.base)
         else:
-            self.controller.tda.reset()
+            self.controller.reset()
         self._reached = self.loop.start(self.plant)
         self._previous = None
         self._sq_sum, self._count, self._infeasible, self._return = 0.0, 0, 0, 0.0
@@ -174,23 +177,21 @@ class TrackEnv(gym.Env[np.ndarray, np.ndarray]):
     def _commander(self, a: Array) -> Any:
         """The (state k, setpoint k) → command k function of this env step's action."""
         task, core = self.task, self.controller
-        lengths_out = core.output == "lengths"
+        lengths_out = getattr(core, "output", "tensions") == "lengths"
 
-        def command(state: State, setpoint: Setpoint, result: TdaResult) -> Command:
+        def command(state: State, setpoint: Setpoint, result: TdaResult, lengths: Array | None = None) -> Command:
             if not result.feasible:
                 self._infeasible += 1
-            tensions = result.tensions
-            if lengths_out:
-                return Command(state.step, state.t, (), result.feasible, result.status,
-                               tuple(core.lengths(setpoint, tensions).tolist()))
-            return Command(state.step, state.t, tuple(tensions.tolist()), result.feasible, result.status)
+            if lengths is not None:
+                return Command(state.step, state.t, (), result.feasible, result.status, tuple(lengths.tolist()))
+            return Command(state.step, state.t, tuple(result.tensions.tolist()), result.feasible, result.status)
 
         if task.action == "residual":
             residual = task.wrench_of(a)
             zero = not np.any(residual)
 
             def residual_step(state: State, setpoint: Setpoint) -> Command:
-                return command(state, setpoint, core.step(state, setpoint, None if zero else residual))
+                return command(state, setpoint, *core.command(state, setpoint, None if zero else residual))
 
             return residual_step
         held: list[TdaResult] = []
@@ -204,7 +205,8 @@ class TrackEnv(gym.Env[np.ndarray, np.ndarray]):
             if not held:  # wrench: distributed once, at the period's first state
                 W = self.wrench_matrix(state.pose[:3], quat_to_matrix(state.pose[3:]))[task.rows]
                 held.append(core.tda.solve(W, wrench, task.tmin, task.tmax))
-            return command(state, setpoint, held[0])
+            lengths = core.lengths(setpoint, held[0].tensions) if lengths_out else None  # (a winch session)
+            return command(state, setpoint, held[0], lengths)
 
         return held_step
 

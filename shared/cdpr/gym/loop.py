@@ -64,7 +64,7 @@ class LocalLoop:
         if key != self._trajectory:  # the setpoints depend on the trajectory only: kept from episode to episode
             self._trajectory = key
             self.setpoint_at = _cached(node_class("trajectory").make_block_core(scenario))
-        self.sensors = sim.make_sensors(scenario)  # type: ignore[attr-defined]  # the sim node's
+        self.sensors = sim.make_sensors(scenario)
         self.total_steps = scenario.total_steps
         self.clamped = 0
         return self._reached(self.sim.message(0), [], [])

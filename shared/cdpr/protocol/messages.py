@@ -24,7 +24,7 @@ import re
 import sys
 from collections.abc import Sequence
 from dataclasses import dataclass, field
-from typing import Annotated, Any, Literal, get_args
+from typing import TYPE_CHECKING, Annotated, Any, Literal, get_args
 
 import msgpack
 import msgspec
@@ -33,6 +33,7 @@ from msgspec import UNSET, UnsetType
 from cdpr.mechanics.outputs import COMMAND_KINDS, CommandKind
 from cdpr.protocol.streams import STATE_COLUMNS
 from cdpr.protocol.wiring import TOPICS, WIRING
+from cdpr.sensors import SENSOR_COLUMNS
 
 PROTOCOL_VERSION = 2  # 2: ticks grant windows; setpoints and telemetry travel in blocks
 TELEMETRY_EVERY = 50  # states per sim/telemetry block at most...
@@ -510,21 +511,33 @@ _COMMAND = _wire("CommandWire", _COMMAND_FIELDS)
 _CommandOut = msgspec.defstruct("CommandOut", [("v", int), *_COMMAND_FIELDS], frozen=True, gc=False)
 
 
-class Sensors(msgspec.Struct, **_STRUCT):
+class _SensorsBase(msgspec.Struct, frozen=True, gc=False):
     """``sim/sensors``: what the simulated sensors read at step ``step`` (noisy, biased, quantised).
 
-    ``encoders`` (m, m): the cable lengths the winch encoders measure; ``load_cells`` (m, N): the cable
-    tensions at the winches; ``accel`` (m/s²) and ``gyro`` (rad/s): the platform IMU's specific force
-    (acceleration minus gravity: +9.81 up at rest) and angular velocity, both in the platform frame.
-    The ground truth stays in ``sim/state``.
+    Its fields after ``step`` and ``t`` are the channels of :data:`cdpr.sensors.SENSOR_COLUMNS` (each kind's, in
+    the table's order: ``encoders`` (m, m), ``load_cells`` (m, N), the IMU's ``accel`` (m/s²) and ``gyro`` (rad/s),
+    ``laser_tracker`` (3, m), …); a channel whose kind the scenario does not have, or whose reading is not
+    delivered at this step (its rate, latency, dropout), is absent (``UNSET``; :meth:`get` gives None). Positional
+    arguments after ``t`` are the channels in that order. The ground truth stays in ``sim/state``.
     """
 
     step: int
     t: float
-    encoders: tuple[float, ...]
-    load_cells: tuple[float, ...]
-    accel: tuple[float, ...]
-    gyro: tuple[float, ...]
+
+    if TYPE_CHECKING:
+        def __init__(self, step: int, t: float, *channels: tuple[float, ...], **named: tuple[float, ...]) -> None: ...
+
+        def __getattr__(self, name: str) -> tuple[float, ...]: ...
+
+    def get(self, name: str) -> tuple[float, ...] | None:
+        """Channel ``name``'s values, or None when absent."""
+        value = getattr(self, name)
+        return None if value is UNSET else value
+
+    @property
+    def readings(self) -> dict[str, tuple[float, ...]]:
+        """The channels present, name → values, in the table's order."""
+        return {c.name: v for c in SENSOR_COLUMNS if (v := getattr(self, c.name)) is not UNSET}
 
     def encode(self) -> bytes:
         return _ENCODER.encode(self)
@@ -532,26 +545,51 @@ class Sensors(msgspec.Struct, **_STRUCT):
     @classmethod
     def decode(cls, payload: bytes, cables: int | None = None) -> Sensors:
         f = _fast(_SENSORS, payload)
-        if f is not None and len(f[3]) == len(f[2]) == (len(f[2]) if cables is None else cables):
-            return cls(*f)
+        if f is not None and _sensor_widths(f[2:], cables):
+            return Sensors(*f)
         return cls._checked(payload, cables)
 
     @classmethod
     def _checked(cls, payload: bytes, cables: int | None = None) -> Sensors:
         msg = unpack(payload)
-        encoders = _vector(msg, "encoders", cables)
-        return cls(
-            _int(msg, "step"),
-            _float(msg, "t"),
-            encoders,
-            _vector(msg, "load_cells", len(encoders)),
-            _vector(msg, "accel", 3),
-            _vector(msg, "gyro", 3),
-        )
+        step, t = _int(msg, "step"), _float(msg, "t")
+        values: list[Any] = []
+        for c in SENSOR_COLUMNS:
+            if c.name not in msg:
+                values.append(UNSET)
+                continue
+            v = _vector(msg, c.name, cables if c.width is None else c.width)
+            if c.width is None:
+                cables = len(v)  # the first per-cable channel tells the others their length
+            values.append(v)
+        return Sensors(step, t, *values)
 
 
-_SENSORS = _wire("SensorsWire", [("step", Count), ("t", Finite), ("encoders", Floats), ("load_cells", Floats),
-                                 ("accel", fixed(3)), ("gyro", fixed(3))])
+def _sensor_widths(values: Sequence[Any], cables: int | None) -> bool:
+    """The channels' lengths agree with their widths (per-cable ones with ``cables``, or with each other)."""
+    for c, v in zip(SENSOR_COLUMNS, values, strict=True):
+        if v is UNSET:
+            continue
+        if c.width is None:
+            if cables is None:
+                cables = len(v)
+            elif len(v) != cables:
+                return False
+    return True
+
+
+def _channel_type(c: Any) -> Any:
+    return Floats if c.width is None else fixed(c.width)
+
+
+if TYPE_CHECKING:
+    Sensors = _SensorsBase
+else:
+    Sensors = msgspec.defstruct("Sensors", [(c.name, _channel_type(c) | UnsetType, UNSET) for c in SENSOR_COLUMNS],
+                                bases=(_SensorsBase,), module=__name__, **_STRUCT)
+    Sensors.__doc__ = _SensorsBase.__doc__
+_SENSORS = _wire("SensorsWire", [("step", Count), ("t", Finite),
+                                 *((c.name, _channel_type(c) | UnsetType, UNSET) for c in SENSOR_COLUMNS)])
 
 
 @dataclass(frozen=True, slots=True)
@@ -648,11 +686,7 @@ class Telemetry:
         if self.resume is not None:
             msg["resume"] = self.resume.as_map()
         if r:
-            msg["sensors"] = {
-                "step": [x.step for x in r], "t": [x.t for x in r], "encoders": _flat([x.encoders for x in r]),
-                "load_cells": _flat([x.load_cells for x in r]), "accel": _flat([x.accel for x in r]),
-                "gyro": _flat([x.gyro for x in r]),
-            }
+            msg["sensors"] = _sensors_block(r)
         return _ENCODER.encode(msg)
 
     @classmethod
@@ -700,9 +734,23 @@ class Telemetry:
             r_steps = _ints(r, "step")
             j = len(r_steps)
             r_t = _vector(r, "t", j)
-            enc, cells = _rows(r, "encoders", j, m), _rows(r, "load_cells", j, m)
-            acc, gyro = _rows(r, "accel", j, 3), _rows(r, "gyro", j, 3)
-            sensors = tuple(Sensors(r_steps[i], r_t[i], enc[i], cells[i], acc[i], gyro[i]) for i in range(j))
+            present = r.get("rows", {})
+            if not isinstance(present, dict):
+                raise ProtocolError("sensors.rows: expected a map")
+            per_row: list[list[Any]] = [[UNSET] * len(SENSOR_COLUMNS) for _ in range(j)]
+            for i, col in enumerate(SENSOR_COLUMNS):
+                if col.name not in r:
+                    if col.name in present:
+                        raise ProtocolError(f"sensors.rows.{col.name}: rows of a channel the block does not have")
+                    continue
+                rows = _ints(present, col.name) if col.name in present else list(range(j))
+                if any(x >= j for x in rows) or len(set(rows)) != len(rows):
+                    raise ProtocolError(f"sensors.rows.{col.name}: expected distinct rows below {j}")
+                width = m if col.width is None else col.width
+                flat = _vector(r, col.name, len(rows) * width)
+                for n, row in enumerate(rows):
+                    per_row[row][i] = flat[n * width:(n + 1) * width]
+            sensors = tuple(Sensors(r_steps[i], r_t[i], *per_row[i]) for i in range(j))
         resume = Resume.from_map(msg["resume"], "resume: ") if "resume" in msg else None
         return cls(states, commands, lags, sensors, lateness, resume)
 
@@ -712,8 +760,26 @@ _COMMAND_BLOCK = msgspec.defstruct("CommandBlockWire", [
     ("feasible", list[bool]), ("status", list[str]), ("solve_time", Floats), ("lag", Floats),
     ("lateness", Floats | UnsetType, UNSET)], frozen=True, gc=False)
 _SENSORS_BLOCK = msgspec.defstruct("SensorsBlockWire", [
-    ("step", list[Count]), ("t", Floats), ("encoders", Floats), ("load_cells", Floats), ("accel", Floats),
-    ("gyro", Floats)], frozen=True, gc=False)
+    ("step", list[Count]), ("t", Floats), *((c.name, Floats | UnsetType, UNSET) for c in SENSOR_COLUMNS),
+    ("rows", dict[str, list[Count]] | UnsetType, UNSET)], frozen=True, gc=False)
+
+
+def _sensors_block(r: Sequence[Sensors]) -> dict[str, Any]:
+    """A telemetry block's ``sensors`` map: each channel flat over the rows that have it (``rows.<name>``: which,
+    when not every row does)."""
+    block: dict[str, Any] = {"step": [x.step for x in r], "t": [x.t for x in r]}
+    present: dict[str, list[int]] = {}
+    for c in SENSOR_COLUMNS:
+        values = [getattr(x, c.name) for x in r]
+        rows = [i for i, v in enumerate(values) if v is not UNSET]
+        if not rows:
+            continue
+        block[c.name] = _flat([values[i] for i in rows])
+        if len(rows) != len(r):
+            present[c.name] = rows
+    if present:
+        block["rows"] = present
+    return block
 _TELEMETRY = _wire("TelemetryWire", [
     ("step", list[Count]), ("t", Floats), *((c.name, list[Count] if c.integer else Floats) for c in STATE_COLUMNS),
     ("command", _COMMAND_BLOCK), ("sensors", _SENSORS_BLOCK | UnsetType, UNSET),
@@ -756,12 +822,24 @@ def _telemetry(f: tuple[Any, ...], cables: int | None) -> Telemetry | None:
     sensors: tuple[Sensors, ...] = ()
     if r is not UNSET:
         j = len(r.step)
-        if not (len(r.t) == j and len(r.encoders) == len(r.load_cells) == j * m and len(r.accel) == len(r.gyro)
-                == 3 * j):
+        if len(r.t) != j:
             return None
-        sensors = tuple(itertools.starmap(Sensors, zip(r.step, r.t, _split(r.encoders, j, m),
-                                                       _split(r.load_cells, j, m), _split(r.accel, j, 3),
-                                                       _split(r.gyro, j, 3), strict=True)))
+        present = {} if r.rows is UNSET else r.rows
+        per_row: list[list[Any]] = [[UNSET] * len(SENSOR_COLUMNS) for _ in range(j)]
+        for i, col in enumerate(SENSOR_COLUMNS):
+            flat = getattr(r, col.name)
+            if flat is UNSET:
+                if col.name in present:
+                    return None
+                continue
+            rows = present.get(col.name, range(j))
+            width = m if col.width is None else col.width
+            if len(flat) != len(rows) * width or (col.name in present and (len(set(rows)) != len(rows)
+                                                                           or any(x >= j for x in rows))):
+                return None
+            for n, row in enumerate(rows):
+                per_row[row][i] = flat[n * width:(n + 1) * width]
+        sensors = tuple(Sensors(r.step[i], r.t[i], *per_row[i]) for i in range(j))
     resume = None
     if resume_raw is not UNSET:
         try:

@@ -37,7 +37,8 @@ def session_info(scenario: Scenario) -> dict[str, Any]:
         "sim": {"cable_model": scenario.cable_model,
                 **({} if (params := scenario.spec.sim.cable_params) is None
                    else {scenario.cable_model: params.model_dump()}),
-                **({"cameras": [c.model_dump() for c in cams]} if (cams := scenario.spec.sim.cameras) else {})},
+                **({"cameras": [c.model_dump() for c in cams]} if (cams := scenario.spec.sim.cameras) else {}),
+                **({} if (sensors := scenario.spec.sim.sensors) is None else {"sensors": sensors.model_dump()})},
         "controller": {
             "output": scenario.output,
             "variant": scenario.variant,

@@ -65,8 +65,9 @@ WIRING: dict[str, NodeWiring] = {
     "trajectory": NodeWiring(subscribes=("tick",), publishes=("setpoints",)),
     # camera: the frames of an image-based visual servo (controller.law: ibvs)
     # end: a controller may end the session early (a learning environment's episode: cdpr.gym)
-    "controller": NodeWiring(subscribes=("state", "setpoints", "camera"), publishes=("command", "end"),
-                             optional=("camera",)),
+    # sensors instead of state: a controller fed an estimate from the sensors (controller.feedback: sensors)
+    "controller": NodeWiring(subscribes=("state", "setpoints", "camera", "sensors"), publishes=("command", "end"),
+                             optional=("state", "camera", "sensors")),
     "recorder": NodeWiring(subscribes=("telemetry", "setpoints", "camera", "camera_image"), publishes=()),
     # the session on ROS 2's wire (rmw_zenoh); "command", and the controller's token, only while a ROS 2
     # controller is there (docs/ros2.md)

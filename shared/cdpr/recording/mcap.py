@@ -47,6 +47,7 @@ from cdpr.protocol.streams import (
     Column,
 )
 from cdpr.recording.scene import anchor_labels, cable_strips, tension_colors
+from cdpr.sensors import SENSOR_COLUMNS
 
 if TYPE_CHECKING:
     import foxglove
@@ -70,6 +71,8 @@ SETPOINT = "/setpoint"  # JSON every setpoint: desired position and quaternion
 ERROR = "/error"  # JSON every step with a state and a setpoint: position and orientation errors
 COMMAND = "/command"  # JSON every command: commanded values, feasibility, TDA status, solve time, loop lag
 SENSORS = "/sensors"  # JSON every reading (scenarios with sensors): encoders, load cells, IMU
+# ... and each sensor channel's own: their fields are declared with the sensors' columns (cdpr.sensors), e.g.
+# /sensors/laser_tracker
 CLOCK = "/clock/status"  # JSON about once a second: the clock's state and stats
 # Cameras (scenario sim.cameras), per camera NAME: /camera/NAME/image (foxglove.CompressedImage, JPEG, with
 # image: true), /camera/NAME/calibration (foxglove.CameraCalibration, with each frame),
@@ -122,20 +125,28 @@ _STATE_CHANNELS = {
 }
 
 
-def state_channels() -> dict[str, list[tuple[Column, ChannelField]]]:
-    """Each JSON channel of the state and the column parts it carries (STATE_COLUMNS' ``fields``), in order."""
+_SENSOR_CHANNELS: dict[str, tuple[str, str, dict[str, Any]]] = {
+    SENSORS: ("cdpr.Sensors", "noisy sensor readings taken with state k", {})}
+
+
+def state_channels(columns: Sequence[Column] = STATE_COLUMNS) -> dict[str, list[tuple[Column, ChannelField]]]:
+    """Each JSON channel of a stream and the column parts it carries (the columns' ``fields``), in order: the
+    state's (STATE_COLUMNS) or the sensors' (SENSOR_COLUMNS)."""
     out: dict[str, list[tuple[Column, ChannelField]]] = {}
-    for c in STATE_COLUMNS:
+    for c in columns:
         for f in c.fields:
             out.setdefault(f.channel, []).append((c, f))
     return out
 
 
-def _state_schemas(m: int) -> dict[str, dict[str, Any]]:
+def _state_schemas(m: int, columns: Sequence[Column] = STATE_COLUMNS,
+                   channels: Mapping[str, tuple[str, str, dict[str, Any]]] = _STATE_CHANNELS
+                   ) -> dict[str, dict[str, Any]]:
     schemas = {}
-    for channel, parts in state_channels().items():
-        title, description, constants = _STATE_CHANNELS.get(
-            channel, (f"cdpr.{channel.strip('/').replace('/', '.')}", "", {}))
+    for channel, parts in state_channels(columns).items():
+        title, description, constants = channels.get(
+            channel, (f"cdpr.{channel.strip('/').replace('/', '.').title().replace('_', '')}",
+                      f"{parts[0][0].doc}", {}))
         properties: dict[str, Any] = {}
         for c, f in parts:
             width = (c.size(m) if f.end is None else f.end) - f.first
@@ -169,12 +180,7 @@ def json_schemas(m: int) -> dict[str, dict[str, Any]]:
             "solve_time": {"type": ["number", "null"], "description": "s the controller spent (null: not sent)"},
             "lag": {**_NUM, "description": "s from the state going out to the step's integration"},
         }),
-        SENSORS: _schema("cdpr.Sensors", "noisy sensor readings taken with state k", {
-            "encoders": _vec(m, f"cable lengths the winch encoders measure, m, {cables}"),
-            "load_cells": _vec(m, f"tensions the load cells measure, N, {cables}"),
-            "accel": _vec(3, "IMU specific force, platform frame, m/s²"),
-            "gyro": _vec(3, "IMU angular velocity, platform frame, rad/s"),
-        }),
+        **_state_schemas(m, SENSOR_COLUMNS, _SENSOR_CHANNELS),
         CLOCK: _schema("cdpr.ClockStatus", "the clock's status (about once a second)", {
             "state": {"type": "string", "description": "waiting, running, paused, finished or aborted"},
             "reason": {"type": "string"},
@@ -503,16 +509,26 @@ class FoxgloveSink:
             "status": status, "solve_time": np.asarray(solve_time, dtype=float), "lag": np.asarray(lag, dtype=float),
         }, {"kind": kind}))
 
-    def sensors(self, step: ArrayLike, t: ArrayLike, encoders: ArrayLike, load_cells: ArrayLike,
-                accel: ArrayLike, gyro: ArrayLike) -> None:
+    def sensors(self, step: ArrayLike, t: ArrayLike, columns: Mapping[str, ArrayLike]) -> None:
+        """Sensor rows: ``columns`` holds each channel of SENSOR_COLUMNS that some row has, (n, width), NaN in the
+        rows without it; a JSON channel gets the rows that have all its fields."""
         k = np.asarray(step, dtype=np.int64)
         if not len(k):
             return
         tt = np.asarray(t, dtype=float)
-        self._emit(SENSORS, tt, lambda: json_rows({
-            "step": k, "t": tt, "encoders": np.asarray(encoders, dtype=float),
-            "load_cells": np.asarray(load_cells, dtype=float), "accel": np.asarray(accel, dtype=float),
-            "gyro": np.asarray(gyro, dtype=float)}))
+        values = {name: np.asarray(v, dtype=float).reshape(len(k), -1) for name, v in columns.items()}
+        for channel, parts in state_channels(SENSOR_COLUMNS).items():
+            if any(c.name not in values for c, _ in parts):
+                continue
+            rows = np.logical_and.reduce([~np.isnan(values[c.name][:, 0]) for c, _ in parts])
+
+            def make(rows: NDArray[np.bool_] = rows, parts: list[tuple[Column, ChannelField]] = parts) -> list[bytes]:
+                fields: dict[str, Any] = {"step": k[rows], "t": tt[rows]}
+                for c, f in parts:
+                    fields[f.name] = values[c.name][rows][:, f.first:f.end]
+                return json_rows(fields)
+
+            self._emit(channel, tt[rows], make)
 
     def statuses(self, rows: Iterable[Any]) -> None:
         """Clock status rows, each with ``step``, ``t``, ``state``, ``reason``, ``stats`` and ``changed``."""

@@ -36,6 +36,7 @@ from cdpr.protocol.streams import (
     TENSION_SERIES,
     Column,
 )
+from cdpr.sensors import encoders, imu, load_cells
 
 APP_ID = "cdpr"
 RECORDING_ID_ENV = "CDPR_RECORDING_ID"  # forces the recording id (e.g. to merge several recorders)
@@ -85,10 +86,9 @@ COMMAND_TENSIONS = "command/tensions"  # m values: the tensions the controller c
 COMMAND_LENGTHS = "command/lengths"  # m values: the unstretched lengths commanded, m (length output)
 COMMAND_SOLVE_TIME = "command/solve_time"  # s the controller spent on the step (feedback law + TDA)
 LOOP_LAG = "loop/lag"  # s from the sim's state going out to the step's integration (controller + wait)
-SENSOR_ENCODERS = "sensors/encoders"  # m values: cable lengths the winch encoders measure, m
-SENSOR_LOAD_CELLS = "sensors/load_cells"  # m values: cable tensions the load cells measure, N
-SENSOR_ACCEL = "sensors/imu/accel"  # [ax, ay, az] specific force in the platform frame, m/s²
-SENSOR_GYRO = "sensors/imu/gyro"  # [wx, wy, wz] angular velocity in the platform frame, rad/s
+# the sensors' series are declared with their kinds (cdpr.sensors: each channel's ``series``), e.g.
+SENSOR_ENCODERS, SENSOR_LOAD_CELLS = encoders.SERIES, load_cells.SERIES
+SENSOR_ACCEL, SENSOR_GYRO = imu.ACCEL, imu.GYRO
 CLOCK = "clock"  # clock/<stat> for each number in clock/status stats (nested maps joined with "/")
 CLOCK_STATE = "clock/state"  # TextLog of the clock's state changes
 

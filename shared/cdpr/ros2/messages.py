@@ -8,7 +8,7 @@ what a ROS 2 controller sends (:func:`read_joint_state`, :func:`read_float64_arr
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 
 from cdpr.ros2.cdr import Reader, Writer
@@ -35,6 +35,11 @@ def pose_stamped(t: Stamp, frame_id: str, pose: Sequence[float]) -> bytes:
     return Writer().header(*t, frame_id).f64s(pose).payload()
 
 
+def point_stamped(t: Stamp, frame_id: str, point: Sequence[float]) -> bytes:
+    """geometry_msgs/PointStamped (x, y, z)."""
+    return Writer().header(*t, frame_id).f64s(point).payload()
+
+
 def twist_stamped(t: Stamp, frame_id: str, twist: Sequence[float]) -> bytes:
     """geometry_msgs/TwistStamped (linear, angular); AccelStamped has the same layout."""
     return Writer().header(*t, frame_id).f64s(twist).payload()
@@ -53,6 +58,23 @@ def imu(t: Stamp, frame_id: str, gyro: Sequence[float], accel: Sequence[float]) 
     convention), covariances unknown (zeros)."""
     w = Writer().header(*t, frame_id).f64s((0.0, 0.0, 0.0, 1.0)).f64s(_UNKNOWN_ORIENTATION)
     return w.f64s(gyro).f64s(_ZERO9).f64s(accel).f64s(_ZERO9).payload()
+
+
+def standard(ros_type: str, t: Stamp, frame_id: str, fields: Mapping[str, Sequence[float]],
+             names: Sequence[str] = ()) -> bytes:
+    """A sensor's message of the standard type ``ros_type`` from its ``fields`` (what :class:`cdpr.sensors.Ros2Topic`
+    declares): JointState (``position``, ``velocity``, ``effort``; ``names`` its joints), Imu
+    (``angular_velocity``, ``linear_acceleration``), PointStamped (``point``), PoseStamped (``pose``)."""
+    if ros_type == "sensor_msgs/msg/JointState":
+        return joint_state(t, names, fields.get("position", ()), fields.get("velocity", ()), fields.get("effort", ()),
+                           frame_id)
+    if ros_type == "sensor_msgs/msg/Imu":
+        return imu(t, frame_id, fields["angular_velocity"], fields["linear_acceleration"])
+    if ros_type == "geometry_msgs/msg/PointStamped":
+        return point_stamped(t, frame_id, fields["point"])
+    if ros_type == "geometry_msgs/msg/PoseStamped":
+        return pose_stamped(t, frame_id, fields["pose"])
+    raise ValueError(f"{ros_type}: not a message type cdpr.ros2 writes for a sensor")
 
 
 def string(text: str) -> bytes:

@@ -15,6 +15,7 @@ from typing import Any
 from cdpr.ros2 import messages as ros
 from cdpr.ros2.cdr import stamp
 from cdpr.ros2.graph import Qos
+from cdpr.sensors import SENSOR_KINDS, Ros2Topic
 
 WORLD, PLATFORM = "world", "platform"  # the tf frames (REP 105's fixed frame, the body)
 RELIABLE = Qos()  # reliable, volatile, keep last 10 (ROS 2's default)
@@ -28,6 +29,12 @@ class RosTopic:
     qos: Qos = RELIABLE
 
 
+def sensor_topic_key(topic: Ros2Topic) -> str:
+    """A sensor topic's key in :data:`PUBLISHED`: ``sensors/joint_states`` → ``sensor_joint_states``."""
+    name = topic.name.removeprefix("sensors/")
+    return ("sensor_" if name != topic.name else "") + name.replace("/", "_")
+
+
 # What a session publishes: every step, with the sensors, once (latched)
 PUBLISHED: dict[str, RosTopic] = {
     "clock": RosTopic("/clock", "rosgraph_msgs/msg/Clock"),
@@ -38,10 +45,10 @@ PUBLISHED: dict[str, RosTopic] = {
     "setpoint_pose": RosTopic("setpoint/pose", "geometry_msgs/msg/PoseStamped"),
     "setpoint_twist": RosTopic("setpoint/twist", "geometry_msgs/msg/TwistStamped"),
     "setpoint_accel": RosTopic("setpoint/accel", "geometry_msgs/msg/AccelStamped"),
-    "imu": RosTopic("imu", "sensor_msgs/msg/Imu"),
-    "sensor_joint_states": RosTopic("sensors/joint_states", "sensor_msgs/msg/JointState"),
+    **{sensor_topic_key(t): RosTopic(t.name, t.type) for kind in SENSOR_KINDS for t in kind.ros2},
     "session_info": RosTopic("session_info", "std_msgs/msg/String", Qos(transient_local=True, depth=1)),
 }
+SENSOR_TOPIC_KIND = {sensor_topic_key(t): kind.name for kind in SENSOR_KINDS for t in kind.ros2}
 # What a ROS 2 controller sends
 COMMANDS: dict[str, RosTopic] = {
     "joint_commands": RosTopic("joint_commands", "sensor_msgs/msg/JointState"),
@@ -112,11 +119,26 @@ def setpoint_messages(t: float, pose: Sequence[float], twist: Sequence[float] | 
     return out
 
 
-def sensor_messages(t: float, names: Sequence[str], encoders: Sequence[float], load_cells: Sequence[float],
-                    accel: Sequence[float], gyro: Sequence[float]) -> Payloads:
-    """The IMU (platform frame) and the winches' encoders (position) and load cells (effort)."""
-    s = stamp(t)
-    return [
-        ("imu", ros.imu(s, PLATFORM, gyro, accel)),
-        ("sensor_joint_states", ros.joint_state(s, names, encoders, (), load_cells)),
-    ]
+def sensor_delays(info: Mapping[str, Any]) -> dict[str, float]:
+    """Each sensor kind's latency, s (a whole number of steps), from the session/info map's ``sim.sensors``."""
+    dt = float(info.get("dt", 0.0) or 0.0)
+    sensors = (info.get("sim") or {}).get("sensors") or {}
+    return {name: round(float(entry.get("latency", 0.0)) / dt) * dt for name, entry in sensors.items()
+            if isinstance(entry, dict) and dt > 0.0}
+
+
+def sensor_messages(t: float, names: Sequence[str], readings: Mapping[str, Sequence[float]],
+                    delays: Mapping[str, float] | None = None) -> Payloads:
+    """The ROS 2 messages of one step's sensor readings (channel name → values; absent channels: no message):
+    each kind's topics (:data:`cdpr.sensors.SENSOR_KINDS`, e.g. ``imu``, ``sensors/joint_states``,
+    ``sensors/laser_tracker``) whose channels are all there, stamped with the measurement's time: ``t`` less the
+    kind's latency (``delays``: kind name → s)."""
+    out: Payloads = []
+    for kind in SENSOR_KINDS:
+        if not kind.ros2 or any(c.name not in readings for c in kind.channels):
+            continue
+        s = stamp(max(0.0, t - (delays or {}).get(kind.name, 0.0)))
+        for topic in kind.ros2:
+            out.append((sensor_topic_key(topic), ros.standard(topic.type, s, topic.frame, topic.fields(readings),
+                                                              names)))
+    return out

@@ -46,6 +46,7 @@ from cdpr.errors import InputError
 from cdpr.protocol import CameraFrame, Command, Keys, Setpoint, State, Status
 from cdpr.protocol.pairing import Pairing
 from cdpr.protocol.session import SessionInfo
+from cdpr.runtime.feedback import SensorFeedback
 from cdpr.runtime.service import Node, pair, serve
 from cdpr.runtime.transport import Event, Inbox, RateLimitedLog, StopFlag, log, may_be_denied, zenoh_config
 
@@ -135,6 +136,7 @@ class RemoteController:
         idle_timeout: float | None = None,
         handle_signals: bool = True,
         stop: StopFlag | None = None,
+        feedback: str = "state",
     ) -> RunReport:
         """Join session ``session`` through the Zenoh endpoint(s) ``connect`` and answer it to the end.
 
@@ -142,8 +144,14 @@ class RemoteController:
         ``mode`` (also read from ``$ZENOH_CONFIG``). ``info_timeout`` bounds the wait for
         ``session/info``; ``idle_timeout`` ends the run when nothing at all is heard for that long (the
         clock publishes its status every second). SIGINT/SIGTERM stop it cleanly when
-        ``handle_signals`` (main thread only); ``stop`` is an alternative, caller-owned flag.
+        ``handle_signals`` (main thread only); ``stop`` is an alternative, caller-owned flag. ``feedback``:
+        ``state`` (:meth:`step` gets ``sim/state``, the truth) or ``sensors`` (it gets an estimate from
+        ``sim/sensors``: the winch encoders through forward kinematics fused with the IMU,
+        :class:`cdpr.runtime.feedback.SensorFeedback`, as the session's own controller does with
+        ``controller.feedback: sensors``; the controller never subscribes to ``sim/state``).
         """
+        if feedback not in ("state", "sensors"):
+            raise InputError(f"feedback: expected state or sensors, got {feedback!r}")
         endpoints = [connect] if isinstance(connect, str) else list(connect)
         try:
             keys = Keys(session)
@@ -153,7 +161,9 @@ class RemoteController:
         flag = stop if stop is not None else StopFlag()
         if handle_signals:
             flag.install()
-        node = _ControllerNode(self, keys, flag, fetch_session_info, info_timeout, idle_timeout)
+        if feedback == "sensors" and not fetch_session_info:
+            raise InputError("feedback: sensors needs the session's info (its robot and sensors): fetch_session_info")
+        node = _ControllerNode(self, keys, flag, fetch_session_info, info_timeout, idle_timeout, feedback)
         code = serve(node, conf, flag)
         node.report.exit_code = code
         return node.report
@@ -170,11 +180,14 @@ class RemoteController:
         parser.add_argument("--zenoh-mode", choices=("client", "peer"), default="client")
         parser.add_argument("--idle-timeout", type=float, default=None,
                             help="give up after this many seconds without hearing from the session")
+        parser.add_argument("--feedback", choices=("state", "sensors"), default="state",
+                            help="what step() gets: sim/state (the truth), or an estimate from sim/sensors (the "
+                            "winch encoders and the IMU: docs/laws.md)")
         args = parser.parse_args(argv)
         try:
             report = self.run(args.connect or ["tcp/127.0.0.1:7447"], args.session,
                               zenoh_config_file=args.zenoh_config, mode=args.zenoh_mode,
-                              idle_timeout=args.idle_timeout)
+                              idle_timeout=args.idle_timeout, feedback=args.feedback)
         except InputError as exc:
             sys.stderr.write(f"cdpr: error: {exc}\n")
             sys.exit(2)
@@ -215,7 +228,7 @@ class _ControllerNode(Node):
     keep_last = ("state",)  # behind (a slow step, a stall), it answers the newest state: docs/realtime.md
 
     def __init__(self, ctrl: RemoteController, keys: Keys, stop: StopFlag, fetch: bool,
-                 info_timeout: float | None, idle_timeout: float | None) -> None:
+                 info_timeout: float | None, idle_timeout: float | None, feedback: str = "state") -> None:
         super().__init__(keys)
         self.name = ctrl.name
         self.ctrl = ctrl
@@ -232,6 +245,11 @@ class _ControllerNode(Node):
         self.wants_frames = type(ctrl).on_camera is not RemoteController.on_camera
         if not self.wants_frames:
             self.leave_out("camera")
+        self.feedback: SensorFeedback | None = None  # feedback from the sensors: made once session/info is in
+        self.from_sensors = feedback == "sensors"
+        self.leave_out("state" if self.from_sensors else "sensors")
+        if self.from_sensors:
+            self.keep_last = ("sensors",)  # behind, it answers the newest reading (the estimator predicts the gap)
 
     def declare(self, session: zenoh.Session, inbox: Inbox) -> list[Any]:
         info = None
@@ -247,6 +265,15 @@ class _ControllerNode(Node):
             log(self.name, f"joined session {self.keys.session!r}: {info.scenario}, robot {info.robot.name} "
                 f"({self.m} cables, {info.robot.mass:g} kg), dt {info.dt:g} s, {info.total_steps} steps")
         self.report.info = info
+        if self.from_sensors:
+            assert info is not None
+            try:
+                self.feedback = SensorFeedback.from_info(info)
+            except InputError as exc:
+                log(self.name, str(exc))
+                self.exit_code = 2
+                self.done = True
+                return []
         self.ctrl.setup(info)
         self._pub = self.publishers["command"]
         self.last_heard = time.monotonic()
@@ -265,6 +292,11 @@ class _ControllerNode(Node):
         if event.topic == "camera":
             if self.wants_frames and (frame := self.decode(event)) is not None:
                 self.ctrl.on_camera(frame)
+        elif event.topic == "sensors":
+            reading = self.decode(event, self.m)
+            state = None if reading is None or self.feedback is None else self.feedback.state(reading)
+            if state is not None and (due := self.pairing.on_state(state)) is not None:
+                self.answer(*due)
         elif (due := pair(self, self.pairing, event, self.m)) is not None:
             self.answer(*due)
 

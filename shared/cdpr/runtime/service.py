@@ -108,6 +108,12 @@ class Node:
         gym's local loop, ``cdpr bench``'s loops). Nodes that publish no setpoints have none."""
         raise NotImplementedError(f"the {cls.name} node publishes no setpoints: it has no block core")
 
+    @classmethod
+    def make_sensors(cls, scenario: Scenario) -> Any:
+        """The node's simulated sensors for ``scenario`` (the sim's ``cdpr_sim.sensors.SensorSuite``: ``read(model)``
+        once per step), None without: the gym's local loop reads them as the sim node does."""
+        return None
+
     def configure(self, conf: zenoh.Config) -> None:
         """Adjust the Zenoh config of the node's own process before its session opens (what a feature of the
         node needs from Zenoh: the ros2 node's timestamps)."""

@@ -101,7 +101,7 @@ def image_errors(rrd: Path, scenario: str) -> tuple[np.ndarray, np.ndarray]:
     from cdpr import recording
 
     sc = load_scenario(scenario)
-    spec = sc.spec.controller.ibvs
+    spec = sc.spec.controller.section("ibvs")
     assert spec is not None
     cam = next(c for c in sc.cameras if c.name == spec.camera)
     if spec.goal is not None:

@@ -19,10 +19,12 @@ import numpy as np
 from numpy.typing import NDArray
 
 from cdpr import recording
+from cdpr.columns import Column
 from cdpr.errors import InputError
 from cdpr.mechanics.robot import Robot
 from cdpr.protocol import Command, Setpoint, State
 from cdpr.protocol.streams import COMMAND_AGE, STATE_COLUMNS, WATCHDOG
+from cdpr.sensors import SENSOR_COLUMNS
 from cdpr.tools.metrics import RunMetrics
 
 FIGURE_SIZE = (12.0, 8.0)  # inches; at FIGURE_DPI this is the PNG's size in pixels
@@ -150,19 +152,43 @@ def state_columns(data: RecordingData, steps: NDArray[np.int64], m: int) -> dict
     lacks one of the steps."""
     out: dict[str, NDArray[Any]] = {}
     for c in STATE_COLUMNS:
-        size = c.size(m)
-        values = np.zeros((len(steps), size))
+        values = np.zeros((len(steps), c.size(m)))
         rows = steps >= c.since
-        at = steps[rows]
-        for s in c.series if rows.any() else ():
-            end = size if s.end is None else s.end
-            if s.split:
-                for i in range(s.first, end):
-                    values[rows, i] = data.get(s.path.format(i=i)).at(at)[:, 0]
-            else:
-                values[rows, s.first:end] = data.get(s.path).at(at)
+        if rows.any():
+            _fill(data, c, values, rows, steps[rows], m)
         out[c.name] = values[:, 0].astype(np.int64) if c.integer else values[:, 0] if c.width == 1 else values
     return out
+
+
+def _fill(data: RecordingData, c: Column, values: NDArray[np.float64], rows: NDArray[np.bool_],
+          at: NDArray[np.int64], m: int) -> None:
+    """``values[rows]`` = column ``c`` at steps ``at``, from its recorded series (KeyError(step): one lacks it)."""
+    size = c.size(m)
+    for s in c.series:
+        end = size if s.end is None else s.end
+        if s.split:
+            for i in range(s.first, end):
+                values[rows, i] = data.get(s.path.format(i=i)).at(at)[:, 0]
+        else:
+            values[rows, s.first:end] = data.get(s.path).at(at)
+
+
+def sensor_columns(data: RecordingData, m: int) -> tuple[NDArray[np.int64], dict[str, NDArray[np.float64]]]:
+    """The sensors' channels (SENSOR_COLUMNS) read back from their recorded series: the steps with a reading of
+    any kind, and each recorded channel's (n, width) values there, NaN where it has none. KeyError(step) where
+    a channel's series disagree on its steps."""
+    found: dict[Column, NDArray[np.int64]] = {}
+    for c in SENSOR_COLUMNS:
+        first = c.series[0]
+        steps = data.get(first.path.format(i=first.first) if first.split else first.path).step
+        if len(steps):
+            found[c] = steps
+    every = np.unique(np.concatenate(list(found.values()))) if found else np.zeros(0, np.int64)
+    out: dict[str, NDArray[np.float64]] = {}
+    for c, steps in found.items():
+        out[c.name] = values = np.full((len(every), c.size(m)), np.nan)
+        _fill(data, c, values, np.isin(every, steps), steps, m)
+    return every, out
 
 
 def metrics_from(data: RecordingData) -> RunMetrics:

@@ -36,13 +36,15 @@ def rrd_to_rosbag2(rrd: str | Path, out: str | Path, namespace: str = "/cdpr") -
     from cdpr.ros2.graph import qualify
     from cdpr.ros2.topics import (
         PUBLISHED,
+        SENSOR_TOPIC_KIND,
         cable_names,
         info_message,
+        sensor_delays,
         sensor_messages,
         setpoint_messages,
         state_messages,
     )
-    from cdpr.tools.report import read_recording, session_of, state_columns
+    from cdpr.tools.report import read_recording, sensor_columns, session_of, state_columns
 
     src, dst = Path(rrd), Path(out)
     if dst.exists():
@@ -63,9 +65,7 @@ def rrd_to_rosbag2(rrd: str | Path, out: str | Path, namespace: str = "/cdpr") -
         feasible = get(recording.COMMAND_FEASIBLE)
         commands = get(recording.COMMAND_LENGTHS if output == "lengths" else recording.COMMAND_TENSIONS)
         command_values = commands.at(feasible.step)
-        enc = get(recording.SENSOR_ENCODERS)
-        sensors = (enc.values, get(recording.SENSOR_LOAD_CELLS).at(enc.step), get(recording.SENSOR_ACCEL).at(enc.step),
-                   get(recording.SENSOR_GYRO).at(enc.step))
+        sensor_steps, readings = sensor_columns(data, m)
     except KeyError as exc:
         raise InputError(f"{src}: incomplete recording: no data for step {exc.args[0]}") from None
 
@@ -83,8 +83,11 @@ def rrd_to_rosbag2(rrd: str | Path, out: str | Path, namespace: str = "/cdpr") -
     for step, values in zip(feasible.step.tolist(), command_values.tolist(), strict=True):
         lengths, tensions = (values, []) if output == "lengths" else ([], values)
         rows.append((_ns(step * dt), "joint_commands", ros.joint_state(stamp(step * dt), names, lengths, [], tensions)))
-    for step, e, c, a, g in zip(enc.step.tolist(), *sensors, strict=True):
-        rows += [(_ns(step * dt), name, payload) for name, payload in sensor_messages(step * dt, names, e, c, a, g)]
+    delays = sensor_delays(info)
+    for i, step in enumerate(sensor_steps.tolist()):
+        reading = {name: v[i].tolist() for name, v in readings.items() if not np.isnan(v[i, 0])}
+        rows += [(_ns(max(0.0, step * dt - delays.get(SENSOR_TOPIC_KIND[name], 0.0))), name, payload)
+                 for name, payload in sensor_messages(step * dt, names, reading, delays)]  # at their stamps
     rows.sort(key=lambda r: r[0])  # a bag's messages in time order (stable: a step's topics keep theirs)
 
     topics = {name: (qualify(namespace, t.name), t.ros_type, t.qos.transient_local) for name, t in PUBLISHED.items()}

@@ -171,7 +171,7 @@ def _feed(
     sink: Any, data: Any, extras: _Extras, dt: float, m: int, scene_every: int, path_every: int
 ) -> dict[str, int]:
     from cdpr import recording
-    from cdpr.tools.report import state_columns
+    from cdpr.tools.report import sensor_columns, state_columns
 
     get = data.get
     k = get(recording.ACTUAL_POSITION).step  # the steps with a state
@@ -221,14 +221,12 @@ def _feed(
         except KeyError as exc:
             raise InputError(f"{data.path}: incomplete recording: no error data for step {exc.args[0]}") from None
 
-    enc = get(recording.SENSOR_ENCODERS)
-    if len(enc.step):
-        r = enc.step
-        try:
-            sink.sensors(r, r * dt, enc.values, get(recording.SENSOR_LOAD_CELLS).at(r),
-                         get(recording.SENSOR_ACCEL).at(r), get(recording.SENSOR_GYRO).at(r))
-        except KeyError as exc:
-            raise InputError(f"{data.path}: incomplete recording: no sensor data for step {exc.args[0]}") from None
+    try:
+        r, readings = sensor_columns(data, m)
+    except KeyError as exc:
+        raise InputError(f"{data.path}: incomplete recording: no sensor data for step {exc.args[0]}") from None
+    if len(r):
+        sink.sensors(r, r * dt, readings)
 
     statuses = _status_rows(extras, recording.CLOCK_STATE)
     sink.statuses(statuses)

@@ -1,4 +1,5 @@
-"""The controller's step: (state k, setpoint k) → tensions k, or unstretched cable lengths k. No I/O.
+"""Feedback linearisation, the seed paper's law (``controller.law: feedback_linearisation``): (state k, setpoint k)
+→ tensions k, or unstretched cable lengths k. No I/O.
 
 Feedback linearisation (eq. 6–7) gives the wrench; the scenario's tension distribution method turns it
 into tensions within [tmin, tmax]. The distributor keeps its warm start / previous tensions between
@@ -18,18 +19,18 @@ there the sag's compliance, ∝ w²l³/T³, multiplies every change of tension i
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from typing import Any
 
 import numpy as np
 from numpy.typing import ArrayLike
 
-from cdpr.config.scenario import Scenario
+from cdpr.laws.base import Law, SetpointLike, StateLike, warm_up
 from cdpr.mechanics.catenary import unstretched_lengths
 from cdpr.mechanics.control import FeedbackLaw, Gains, Variant, controlled_rows
 from cdpr.mechanics.kinematics import WrenchMatrix, inverse_kinematics
 from cdpr.mechanics.robot import Robot
 from cdpr.mechanics.rotation import Array, quat_to_matrix
 from cdpr.mechanics.tda import TdaResult, TensionDistributor, make_tda
-from cdpr.protocol import Setpoint, State
 
 
 def stretch_compensated_lengths(robot: Robot, position: ArrayLike, R: ArrayLike, tensions: ArrayLike,
@@ -72,37 +73,40 @@ class ControllerCore:
         self._tmax = float(self.robot.tmax[0]) if uniform else self.robot.tmax
 
     @classmethod
-    def from_scenario(cls, scenario: Scenario) -> ControllerCore:
+    def from_scenario(cls, scenario: Any) -> ControllerCore:
+        """For a :class:`cdpr.config.scenario.Scenario`."""
         params = scenario.spec.sim.cable_params  # a stretching cable's EA, for length commands
         EA = None if params is None else params.EA
         tda = make_tda(scenario.tda_method, **scenario.tda_options)
         return cls(scenario.robot, scenario.gains, scenario.variant, tda, scenario.output, EA)
 
-    def lengths(self, setpoint: Setpoint, tensions: ArrayLike) -> Array:
+    def lengths(self, setpoint: SetpointLike, tensions: ArrayLike) -> Array:
         """The unstretched lengths that hold ``tensions`` at the setpoint's pose (length output)."""
         if self.axial_stiffness is None:
             raise ValueError("length output needs the cables' axial_stiffness EA")
         R = quat_to_matrix(setpoint.pose[3:])
         return stretch_compensated_lengths(self.robot, setpoint.pose[:3], R, tensions, self.axial_stiffness)
 
-    def command(self, state: State, setpoint: Setpoint) -> tuple[TdaResult, Array | None]:
+    def command(self, state: StateLike, setpoint: SetpointLike | None,
+                residual: Array | None = None) -> tuple[TdaResult, Array | None]:
         """The distribution of step k and, for length output, the lengths to command (else None)."""
-        result = self.step(state, setpoint)
+        if setpoint is None:
+            raise ValueError("feedback linearisation needs the setpoint of the state's step")
+        result = self.step(state, setpoint, residual)
         return result, (self.lengths(setpoint, result.tensions) if self.output == "lengths" else None)
 
-    def warm_up(self, state: State, setpoint: Setpoint, rounds: int = 3) -> None:
-        """Answer (state, setpoint) a few times, then forget it (the distributor's warm start): the
-        first answers of a process pay for lazy imports and first-call set-ups (several ms), which a
-        realtime session would otherwise see as late ticks. Changes nothing the next answers depend on."""
-        for _ in range(rounds):
-            self.command(state, setpoint)
+    def reset(self) -> None:
         self.tda.reset()
+
+    def warm_up(self, state: StateLike, setpoint: SetpointLike, rounds: int = 3) -> None:
+        """:func:`cdpr.laws.base.warm_up`."""
+        warm_up(self, state, setpoint, rounds)
 
     @property
     def rows(self) -> list[int]:
         return list(controlled_rows(self.robot, self.variant))
 
-    def step(self, state: State, setpoint: Setpoint, residual: Array | None = None) -> TdaResult:
+    def step(self, state: StateLike, setpoint: SetpointLike, residual: Array | None = None) -> TdaResult:
         """The tensions of step k. ``residual``: a wrench on the controlled rows added to the law's before the
         distribution (a learned residual policy's, :mod:`cdpr.gym`); None adds nothing."""
         # Eq. 6–7 by cdpr.mechanics.control.FeedbackLaw and W by cdpr.mechanics.kinematics.WrenchMatrix, both set
@@ -119,3 +123,7 @@ class ControllerCore:
         if residual is not None:
             wrench = wrench + residual
         return self.tda.solve(W, wrench, self._tmin, self._tmax)
+
+
+LAW = Law(name="feedback_linearisation", build=ControllerCore.from_scenario,
+          doc="feedback linearisation (eq. 6–7) on the setpoints, then the tension distribution")

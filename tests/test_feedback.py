@@ -1,0 +1,149 @@
+"""Control from what a real robot measures (``controller.feedback: sensors``): the estimator
+(cdpr.mechanics.estimation) against the truth, and whole sessions whose controller never reads ``sim/state``."""
+
+from __future__ import annotations
+
+import json
+import re
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+import yaml
+
+from cdpr.config.scenario import load_scenario
+from cdpr.errors import InputError
+from cdpr.laws.feedback_linearisation import ControllerCore
+from cdpr.mechanics.estimation import PoseEstimator
+from cdpr.mechanics.forward import ForwardKinematics
+from cdpr.mechanics.rotation import matrix_to_rotvec, quat_to_matrix
+from cdpr.runtime.feedback import SensorFeedback, noise_of
+from cdpr.runtime.registry import node_class
+from cdpr_sim.models import make_sim
+from cdpr_sim.node import SimNode
+
+ROOT = Path(__file__).resolve().parents[1]
+CDPR = [sys.executable, "-m", "cdpr"]
+
+
+def test_the_estimate_is_closer_to_the_truth_than_forward_kinematics_alone() -> None:
+    """2 s of caroca_15kg_sensors driven by the truth-fed controller; the estimator runs beside it on the sensors'
+    readings: its position error is a fraction of the FK's (the encoders' noise and quantisation), its twist
+    follows the platform's."""
+    sc = load_scenario("caroca_15kg_sensors")
+    sim, sensors, core = make_sim(sc), SimNode.make_sensors(sc), ControllerCore.from_scenario(sc)
+    setpoint_at = node_class("trajectory").make_core(sc)
+    noise, imu = noise_of(sc.spec.sim.sensors.model_dump())
+    assert imu
+    estimator, fk = PoseEstimator(sc.robot, sc.dt, noise, sc.initial_position, sc.initial_rotation), \
+        ForwardKinematics(sc.robot)
+    est, raw, twist, angle = [], [], [], []
+    for k in range(2000):
+        truth, reading = sim.message(0), sensors.read(sim)
+        e = estimator.update(k, reading.encoders, reading.accel, reading.gyro)
+        f = fk.solve(reading.encoders)
+        if k >= 200:  # after the filter's start
+            est.append(np.linalg.norm(e.position - truth.pose[:3]))
+            raw.append(np.linalg.norm(f.position - truth.pose[:3]))
+            twist.append(np.linalg.norm(e.twist[:3] - truth.twist[:3]))
+            angle.append(np.linalg.norm(matrix_to_rotvec(e.rotation @ quat_to_matrix(truth.pose[3:]).T)))
+        sim.step(core.step(truth, setpoint_at(k)).tensions)
+    rms = lambda x: float(np.sqrt(np.mean(np.square(x))))  # noqa: E731
+    assert rms(est) < 0.5 * rms(raw)
+    assert rms(est) < 2e-5  # m
+    assert rms(angle) < 1e-4  # rad
+    assert rms(twist) < 2e-3  # m/s, while the platform moves at up to ~0.2 m/s
+
+
+def test_feedback_from_sensors_needs_encoders_and_a_law_of_states(tmp_path: Path) -> None:
+    spec = yaml.safe_load((ROOT / "shared/cdpr/scenarios/caroca_15kg_sensors.yaml").read_text(encoding="utf-8"))
+    del spec["sim"]["sensors"]["encoders"]
+    spec["sim"]["sensors"]["encoders"] = None
+    path = tmp_path / "bad.yaml"
+    path.write_text(yaml.safe_dump(spec), encoding="utf-8")
+    with pytest.raises(InputError, match=r"controller\.feedback: sensors needs sim\.sensors\.encoders"):
+        load_scenario(path)
+    spec = yaml.safe_load((ROOT / "shared/cdpr/scenarios/caroca_15kg_ibvs.yaml").read_text(encoding="utf-8"))
+    spec["controller"]["feedback"] = "sensors"
+    spec["sim"]["sensors"] = {"encoders": {"sigma": 1e-5}}
+    path.write_text(yaml.safe_dump(spec), encoding="utf-8")
+    with pytest.raises(InputError, match=r"controller\.feedback: sensors .*law ibvs"):
+        load_scenario(path)
+
+
+def test_a_resent_reading_gets_the_state_it_got_before() -> None:
+    sc = load_scenario("caroca_15kg_sensors")
+    sim, sensors, feedback = make_sim(sc), SimNode.make_sensors(sc), SensorFeedback.from_scenario(sc)
+    first = feedback.state(sensors.read(sim))
+    sim.step(np.full(sc.robot.m, 60.0))
+    second = feedback.state(sensors.read(sim))
+    assert first is not None
+    assert second is not None
+    assert feedback.state(sensors.read(sim)) is second
+    assert second.step == 1
+    assert second.cable_lengths == sensors.read(sim).encoders
+
+
+def _run(scenario: str | Path, *args: str) -> tuple[dict, str]:
+    run = subprocess.run([*CDPR, "run", str(scenario), "--quiet", *args], capture_output=True, text=True,
+                         timeout=900, check=False)
+    assert run.returncode == 0, run.stderr[-3000:]
+    return json.loads(run.stdout.strip().splitlines()[-1]), run.stderr
+
+
+@pytest.mark.slow
+def test_caroca_15kg_from_its_sensors_tracks_within_the_bounds(tmp_path: Path) -> None:
+    """The whole caroca_15kg with its controller fed by the encoders and the IMU: RMS tracking error (the truth's)
+    ≤ 1 mm and ≤ 3 × the truth-fed session's; the distributed loop and the in-process one give the same digest; the
+    controller received no sim/state message (its own count)."""
+    spec = yaml.safe_load((ROOT / "shared/cdpr/scenarios/caroca_15kg_sensors.yaml").read_text(encoding="utf-8"))
+    spec["controller"]["feedback"] = "state"
+    spec["name"] = "caroca_15kg_sensors_truth"
+    truth_fed = tmp_path / "truth.yaml"
+    truth_fed.write_text(yaml.safe_dump(spec), encoding="utf-8")
+    truth, _ = _run(truth_fed, "--in-process")
+    local, local_log = _run("caroca_15kg_sensors", "--in-process")
+    distributed, log = _run("caroca_15kg_sensors")
+    for s in (truth, local, distributed):
+        assert s["exit_ok"], s
+        assert s["steps"] == s["total_steps"] == 11000
+    assert local["state_digest"] == distributed["state_digest"]
+    assert local["rms_position_error"] <= 1e-3
+    assert local["rms_position_error"] <= 3 * truth["rms_position_error"]
+    for text in (local_log, log):
+        received = re.search(r"\[controller\] .*received: (.*)$", text, re.MULTILINE)
+        assert received, text[-3000:]
+        counts = dict((name, int(n)) for n, name in re.findall(r"(\d+) (\w+)", received.group(1)))
+        assert "state" not in counts, received.group(0)
+        assert counts["sensors"] >= 11000, received.group(0)
+
+
+@pytest.mark.slow
+def test_the_remote_example_from_its_sensors_tracks_within_the_bounds(tmp_path: Path) -> None:
+    """examples/remote_controller.py (the SDK) with ``--feedback sensors`` drives caroca_15kg_sensors' plant to the
+    end, never subscribing to sim/state: RMS ≤ 1 mm and ≤ 3 × the same example fed the truth."""
+    from conftest import free_port, last_json_line
+    from test_compose import Processes
+
+    results = {}
+    for feedback in ("state", "sensors"):
+        port, procs, session = free_port(), Processes(), f"fb{feedback}"
+        try:
+            up = [*CDPR, "up", "caroca_15kg_sensors", "--session", session, "--without", "controller", "--listen",
+                  f"tcp/127.0.0.1:{port}", "--quiet"]
+            procs.start("up", up, tmp_path, tmp_path / f"up_{feedback}.log")
+            procs.start("remote", [sys.executable, str(ROOT / "examples" / "remote_controller.py"), "--connect",
+                                   f"tcp/127.0.0.1:{port}", "--session", session, "--feedback", feedback],
+                        tmp_path, tmp_path / f"remote_{feedback}.log")
+            codes = procs.wait(["up", "remote"], timeout=600)
+            assert codes == {"up": 0, "remote": 0}, procs.report()
+            results[feedback] = last_json_line(procs.log("up"))
+        finally:
+            procs.close()
+    for s in results.values():
+        assert s["exit_ok"] is True
+        assert s["steps"] == 11000
+    assert results["sensors"]["rms_position_error"] <= 1e-3
+    assert results["sensors"]["rms_position_error"] <= 3 * results["state"]["rms_position_error"]
