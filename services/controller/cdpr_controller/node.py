@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import time
 from collections import Counter
-from typing import Any
+from typing import Any, cast
 
 import numpy as np
 import zenoh
@@ -23,7 +23,7 @@ from cdpr.mechanics.tda import TdaResult
 from cdpr.protocol import Command, Keys, Setpoint, State
 from cdpr.protocol.pairing import Pairing
 from cdpr.runtime.feedback import SensorFeedback
-from cdpr.runtime.service import Node, pair
+from cdpr.runtime.service import Node, pair, pair_sensors
 from cdpr.runtime.transport import Event, Inbox, log, may_be_denied
 
 
@@ -49,7 +49,7 @@ class ControllerNode(Node):
         self.total_steps = scenario.total_steps
         self.core = self.make_core(scenario)
         # a law of camera frames (IBVS): the frames in, states answered once the frame they call for has come
-        self.frames: FrameLaw | None = self.core if "camera" in self.law.inputs else None  # type: ignore[assignment]
+        self.frames = cast(FrameLaw, self.core) if "camera" in self.law.inputs else None
         self.waiting: State | None = None  # a state whose frame has not come yet
         self.frames_given_up = -1  # the exposure of the last frame given up for lost
         # held at the start pose, at rest: about what step 0 brings
@@ -73,23 +73,11 @@ class ControllerNode(Node):
         self.received[event.topic] += 1
         if self.frames is not None:
             self.handle_frames(self.frames, event)
-        elif event.topic == "sensors":
-            self.handle_sensors(event)
+        elif event.topic == "sensors":  # controller.feedback: sensors: the estimate stands for the state
+            assert self.feedback is not None
+            if (due := pair_sensors(self, self.pairing, self.feedback, event, self.m)) is not None:
+                self.answer(*due)
         elif (due := pair(self, self.pairing, event, self.m)) is not None:
-            self.answer(*due)
-
-    def handle_sensors(self, event: Event) -> None:
-        """controller.feedback: sensors: the reading's estimated state stands for the state of its step."""
-        assert self.feedback is not None
-        reading = self.decode(event, self.m)
-        if reading is None:
-            return
-        state = self.feedback.state(reading)
-        if state is None:
-            self.count("sensors_without_encoders")
-            self.warn("sensors", f"step {reading.step}: a reading without encoder lengths: no state to answer")
-            return
-        if (due := self.pairing.on_state(state)) is not None:
             self.answer(*due)
 
     def handle_frames(self, law: FrameLaw, event: Event) -> None:

@@ -96,8 +96,9 @@ class SensorSuite:
         self._last: Sensors | None = None
         self._draw = Draws()
 
-    def truth(self, sim: SimModel) -> Truth:
-        state = sim.state()
+    def truth(self, sim: SimModel, state: Any = None) -> Truth:
+        """What the sensors measure now (``state``: ``sim.state()``, if the caller has it)."""
+        state = sim.state() if state is None else state
         twist = np.asarray(state.twist, dtype=float)
         prev = self.previous
         if prev is not None and prev[0] == state.step - 1:
@@ -108,10 +109,10 @@ class SensorSuite:
                      acceleration, sim.encoder_lengths(), sim.load_cell_tensions(), self.com_offset)
 
     def read(self, sim: SimModel) -> Sensors:
-        step = sim.state().step
-        if self._last is not None and self._last.step == step:
+        state = sim.state()
+        if self._last is not None and self._last.step == state.step:
             return self._last
-        return self.take(self.truth(sim))
+        return self.take(self.truth(sim, state))
 
     def take(self, truth: Truth) -> Sensors:
         """The message of ``truth.step`` (a new step): the readings measured now and delivered now, and those
@@ -140,6 +141,9 @@ class SensorSuite:
         if self.pending:
             out["sensors_pending"] = [[step, j, [list(v) for v in values]]
                                       for step, items in sorted(self.pending.items()) for j, values in items]
+        last = self._last
+        if last is not None and prev is not None and last.step == prev[0]:  # the message of the snapshot's step
+            out["sensors_last"] = {"step": last.step, "t": last.t, **{k: list(v) for k, v in last.readings.items()}}
         return out
 
     def restore(self, snapshot: dict[str, Any]) -> None:
@@ -148,5 +152,7 @@ class SensorSuite:
         self.pending = {}
         for step, j, values in snapshot.get("sensors_pending", ()):
             self.pending.setdefault(int(step), []).append((int(j), tuple(tuple(map(float, v)) for v in values)))
-        self._last = None
+        last = snapshot.get("sensors_last")  # the snapshot step's message: read again as it was, not measured again
+        self._last = None if last is None else Sensors(int(last["step"]), float(last["t"]), **{
+            k: tuple(map(float, v)) for k, v in last.items() if k not in ("step", "t")})
 

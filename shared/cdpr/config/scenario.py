@@ -352,6 +352,11 @@ class ScenarioSpec(Strict):
             if self.sim.sensors is None or getattr(self.sim.sensors, "encoders", None) is None:
                 raise ValueError("controller.feedback: sensors needs sim.sensors.encoders (the estimate's pose is "
                                  "their forward kinematics)")
+            for name in ("encoders", "imu"):  # the filter takes a reading as measured at its step, every step
+                entry = getattr(self.sim.sensors, name, None)
+                if entry is not None and (entry.rate or entry.latency or entry.dropout):
+                    raise ValueError(f"controller.feedback: sensors reads sim.sensors.{name} every step as measured "
+                                     "then: its rate, latency and dropout must stay 0")
         latency, watchdog = self.sim.command_latency, self.sim.watchdog
         if latency is not None:
             most = latency.steps + latency.jitter

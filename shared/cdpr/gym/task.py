@@ -194,8 +194,8 @@ class Task:
 
     def observe(self, state: State, setpoint: Setpoint, sensors: Sensors | None) -> Array:
         e_p, e_r = self.errors(state, setpoint)
-        lengths = state.cable_lengths if sensors is None else sensors.encoders
-        tensions = state.tensions if sensors is None else sensors.load_cells
+        lengths = (None if sensors is None else sensors.get("encoders")) or state.cable_lengths
+        tensions = (None if sensors is None else sensors.get("load_cells")) or state.tensions
         obs = np.concatenate([e_p, e_r, state.twist, setpoint.twist, setpoint.accel, lengths, tensions])
         low, high = self.bounds_cache
         return np.clip(obs.astype(np.float32), low, high)

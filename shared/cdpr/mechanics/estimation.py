@@ -7,8 +7,8 @@ A loosely coupled Kalman filter, one step per sensor reading:
   Jacobian at the pose, σ the encoders' noise with their quantisation, ``q²/12``).
 * **Translation**, per world axis, the state ``[p, v]``: predicted with the IMU's acceleration ``R f + g`` (``f``
   its specific force, body frame; the mean acceleration over the step, as the sim's semi-implicit step moves
-  ``v ← v + a dt``, ``p ← p + v dt``), process noise from the accelerometer's σ; without an IMU a constant
-  velocity with a random acceleration of ``accel_walk`` (m/s²). Updated with the FK position.
+  ``v ← v + a dt``, ``p ← p + v dt``), process noise from the accelerometer's σ; a step without its reading (no
+  IMU) a constant velocity with a random acceleration of ``motion_walk`` (m/s²). Updated with the FK position.
 * **Rotation**, per world axis, an error state ``[δθ, ω]`` about the predicted ``R`` (``R ← exp([ω dt]×) R``):
   updated with the FK orientation (``δθ = log(R_fk Rᵀ)``) and, with an IMU, with the gyroscope's rate
   ``R g`` (world frame); the correction is folded back into ``R``.
@@ -39,7 +39,8 @@ class EstimatorNoise:
     encoder_resolution: float = 0.0
     accel_sigma: float = 0.02
     gyro_sigma: float = 0.002
-    accel_walk: float = 0.05  # with an IMU: the accelerometer's error between readings; without one: the motion's
+    accel_walk: float = 0.05  # m/s²: the accelerometer's error between readings (a step with its reading)
+    motion_walk: float = 20.0  # m/s²: the motion's acceleration the model allows (a step without one)
     angular_walk: float = 5.0  # rad/s², the angular rate's change the model allows (unmeasured angular accel)
 
     @property
@@ -100,15 +101,15 @@ class PoseEstimator:
         if dt <= 0.0:
             return
         n = self.noise
-        if accel is not None:
+        self.R = rotvec_matrix(*(self.w * dt).tolist()) @ self.R  # the orientation at the reading's step
+        if accel is not None:  # the specific force of the step that led here, in the body frame of its end
             a = self.R @ accel + GRAVITY
             q_a = n.accel_sigma ** 2 + n.accel_walk ** 2
         else:
             a = np.zeros(3)
-            q_a = n.accel_walk ** 2
+            q_a = n.motion_walk ** 2
         self.v = self.v + a * dt
         self.p = self.p + self.v * dt
-        self.R = rotvec_matrix(*(self.w * dt).tolist()) @ self.R
         # P ← F P Fᵀ + q G Gᵀ, F = [[1, dt], [0, 1]], G = [dt², dt] (the input enters v by dt, p by dt²)
         g0, g1 = dt * dt, dt
         for q, (a0, b0, c0) in ((q_a, (self.t_a, self.t_b, self.t_c)),

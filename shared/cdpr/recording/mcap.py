@@ -47,7 +47,7 @@ from cdpr.protocol.streams import (
     Column,
 )
 from cdpr.recording.scene import anchor_labels, cable_strips, tension_colors
-from cdpr.sensors import SENSOR_COLUMNS
+from cdpr.sensors import SENSOR_COLUMNS, encoders
 
 if TYPE_CHECKING:
     import foxglove
@@ -70,7 +70,7 @@ SCENE_PATH = "/scene/path"  # foxglove.SceneUpdate: the path travelled so far (p
 SETPOINT = "/setpoint"  # JSON every setpoint: desired position and quaternion
 ERROR = "/error"  # JSON every step with a state and a setpoint: position and orientation errors
 COMMAND = "/command"  # JSON every command: commanded values, feasibility, TDA status, solve time, loop lag
-SENSORS = "/sensors"  # JSON every reading (scenarios with sensors): encoders, load cells, IMU
+SENSORS = encoders.CHANNEL  # "/sensors": JSON every reading (scenarios with sensors): encoders, load cells, IMU
 # ... and each sensor channel's own: their fields are declared with the sensors' columns (cdpr.sensors), e.g.
 # /sensors/laser_tracker
 CLOCK = "/clock/status"  # JSON about once a second: the clock's state and stats
@@ -511,16 +511,18 @@ class FoxgloveSink:
 
     def sensors(self, step: ArrayLike, t: ArrayLike, columns: Mapping[str, ArrayLike]) -> None:
         """Sensor rows: ``columns`` holds each channel of SENSOR_COLUMNS that some row has, (n, width), NaN in the
-        rows without it; a JSON channel gets the rows that have all its fields."""
+        rows without it; a JSON channel gets the rows that have one of its fields, a field without a reading in a
+        row written as nulls there (a kind with another rate, or a lost reading)."""
         k = np.asarray(step, dtype=np.int64)
         if not len(k):
             return
         tt = np.asarray(t, dtype=float)
         values = {name: np.asarray(v, dtype=float).reshape(len(k), -1) for name, v in columns.items()}
-        for channel, parts in state_channels(SENSOR_COLUMNS).items():
-            if any(c.name not in values for c, _ in parts):
+        for channel, all_parts in state_channels(SENSOR_COLUMNS).items():
+            parts = [(c, f) for c, f in all_parts if c.name in values]  # the fields of the kinds configured
+            if not parts:
                 continue
-            rows = np.logical_and.reduce([~np.isnan(values[c.name][:, 0]) for c, _ in parts])
+            rows = np.logical_or.reduce([~np.isnan(values[c.name][:, 0]) for c, _ in parts])
 
             def make(rows: NDArray[np.bool_] = rows, parts: list[tuple[Column, ChannelField]] = parts) -> list[bytes]:
                 fields: dict[str, Any] = {"step": k[rows], "t": tt[rows]}

@@ -10,12 +10,13 @@ import json
 import re
 from collections.abc import Container, Mapping, Sequence
 from dataclasses import dataclass
+from types import SimpleNamespace
 from typing import Any
 
 from cdpr.ros2 import messages as ros
 from cdpr.ros2.cdr import stamp
 from cdpr.ros2.graph import Qos
-from cdpr.sensors import SENSOR_KINDS, Ros2Topic
+from cdpr.sensors import SENSOR_KINDS, Ros2Topic, latency_steps
 
 WORLD, PLATFORM = "world", "platform"  # the tf frames (REP 105's fixed frame, the body)
 RELIABLE = Qos()  # reliable, volatile, keep last 10 (ROS 2's default)
@@ -123,8 +124,8 @@ def sensor_delays(info: Mapping[str, Any]) -> dict[str, float]:
     """Each sensor kind's latency, s (a whole number of steps), from the session/info map's ``sim.sensors``."""
     dt = float(info.get("dt", 0.0) or 0.0)
     sensors = (info.get("sim") or {}).get("sensors") or {}
-    return {name: round(float(entry.get("latency", 0.0)) / dt) * dt for name, entry in sensors.items()
-            if isinstance(entry, dict) and dt > 0.0}
+    return {name: latency_steps(SimpleNamespace(latency=float(entry.get("latency", 0.0))), dt) * dt
+            for name, entry in sensors.items() if isinstance(entry, dict) and dt > 0.0}
 
 
 def sensor_messages(t: float, names: Sequence[str], readings: Mapping[str, Sequence[float]],

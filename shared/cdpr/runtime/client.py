@@ -47,7 +47,7 @@ from cdpr.protocol import CameraFrame, Command, Keys, Setpoint, State, Status
 from cdpr.protocol.pairing import Pairing
 from cdpr.protocol.session import SessionInfo
 from cdpr.runtime.feedback import SensorFeedback
-from cdpr.runtime.service import Node, pair, serve
+from cdpr.runtime.service import Node, pair, pair_sensors, serve
 from cdpr.runtime.transport import Event, Inbox, RateLimitedLog, StopFlag, log, may_be_denied, zenoh_config
 
 INFO_RETRY = 0.5  # seconds between two `get`s of session/info while no clock answers
@@ -293,9 +293,8 @@ class _ControllerNode(Node):
             if self.wants_frames and (frame := self.decode(event)) is not None:
                 self.ctrl.on_camera(frame)
         elif event.topic == "sensors":
-            reading = self.decode(event, self.m)
-            state = None if reading is None or self.feedback is None else self.feedback.state(reading)
-            if state is not None and (due := self.pairing.on_state(state)) is not None:
+            if self.feedback is not None and (due := pair_sensors(self, self.pairing, self.feedback, event,
+                                                                  self.m)) is not None:
                 self.answer(*due)
         elif (due := pair(self, self.pairing, event, self.m)) is not None:
             self.answer(*due)

@@ -16,7 +16,7 @@ from typing import Any
 from numpy.typing import ArrayLike
 
 from cdpr.errors import InputError
-from cdpr.mechanics.estimation import Estimate, EstimatorNoise, PoseEstimator
+from cdpr.mechanics.estimation import EstimatorNoise, PoseEstimator
 from cdpr.mechanics.robot import Robot
 from cdpr.mechanics.rotation import matrix_to_quat
 from cdpr.protocol import Sensors, State
@@ -33,8 +33,7 @@ def noise_of(sensors: Mapping[str, Any]) -> tuple[EstimatorNoise, bool]:
     noise = EstimatorNoise(encoder_sigma=max(float(encoders.get("sigma", 0.0)), ENCODER_SIGMA_FLOOR),
                            encoder_resolution=float(encoders.get("resolution", 0.0)),
                            accel_sigma=0.0 if imu is None else float(imu.get("accel_sigma", 0.0)),
-                           gyro_sigma=0.0 if imu is None else max(float(imu.get("gyro_sigma", 0.0)), 1e-6),
-                           accel_walk=0.05 if imu is not None else 20.0)
+                           gyro_sigma=0.0 if imu is None else max(float(imu.get("gyro_sigma", 0.0)), 1e-6))
     return noise, imu is not None
 
 
@@ -48,7 +47,6 @@ class SensorFeedback:
         self.m = robot.m
         self.estimator = PoseEstimator(robot, dt, self.noise, position, rotation)
         self.states: OrderedDict[int, State] = OrderedDict()
-        self.last: Estimate | None = None
 
     @classmethod
     def from_scenario(cls, scenario: Any) -> SensorFeedback:
@@ -63,6 +61,11 @@ class SensorFeedback:
         if not isinstance(sensors, dict) or not sensors.get("encoders"):
             raise InputError(f"session {info.scenario}: feedback from sensors needs its winch encoders (sim.sensors."
                              "encoders in session/info)")
+        for name in ("encoders", "imu"):
+            entry = sensors.get(name) or {}
+            if any(entry.get(key) for key in ("rate", "latency", "dropout")):
+                raise InputError(f"session {info.scenario}: feedback from sensors reads sim.sensors.{name} every "
+                                 "step as measured then: its rate, latency and dropout must be 0")
         return cls(info.robot, info.dt, sensors)
 
     def state(self, reading: Sensors) -> State | None:
@@ -74,7 +77,7 @@ class SensorFeedback:
         if lengths is None:
             return None
         accel, gyro = (reading.get("accel"), reading.get("gyro")) if self.imu else (None, None)
-        e = self.last = self.estimator.update(reading.step, lengths, accel, gyro)
+        e = self.estimator.update(reading.step, lengths, accel, gyro)
         tensions = reading.get("load_cells") or (0.0,) * self.m
         state = State(reading.step, reading.t, (*e.position.tolist(), *matrix_to_quat(e.rotation).tolist()),
                       tuple(e.twist.tolist()), tuple(lengths), tuple(tensions))

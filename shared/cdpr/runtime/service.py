@@ -47,6 +47,7 @@ if TYPE_CHECKING:
     from cdpr.config.scenario import Scenario
     from cdpr.protocol import Setpoint, State
     from cdpr.protocol.pairing import Pairing
+    from cdpr.runtime.feedback import SensorFeedback
 
 PARENT_ENV = "CDPR_PARENT_PID"
 
@@ -181,6 +182,21 @@ def pair(node: Node, pairing: Pairing, event: Event, m: int | None) -> tuple[Sta
         return None  # (a camera's frames: an image-based servo's, cdpr_controller.ibvs)
     block = node.decode(event)
     return None if block is None else pairing.on_setpoints(block)
+
+
+def pair_sensors(node: Node, pairing: Pairing, feedback: SensorFeedback, event: Event,
+                 m: int | None) -> tuple[State, Setpoint] | None:
+    """A controller's ``sensors`` event (``feedback: sensors``), decoded (a bad one counted and dropped), its
+    estimated state given to ``pairing``: the (state, setpoint) pair it makes due, if any (the controller node
+    and the SDK's). A reading without encoder lengths is counted (``sensors_without_encoders``) and left."""
+    reading = node.decode(event, m)
+    if reading is None:
+        return None
+    state = feedback.state(reading)
+    if state is None:
+        node.count("sensors_without_encoders")
+        return None
+    return pairing.on_state(state)
 
 
 def newest_only(events: Iterable[Event], topics: tuple[str, ...]) -> Iterable[Event]:

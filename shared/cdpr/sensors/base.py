@@ -12,11 +12,10 @@ from dataclasses import dataclass, field
 from typing import Any, Literal
 
 import numpy as np
-from numpy.typing import ArrayLike, NDArray
+from numpy.typing import ArrayLike
 
 from cdpr.columns import Column
-
-Array = NDArray[np.float64]
+from cdpr.mechanics.rotation import Array
 
 
 @dataclass(frozen=True)

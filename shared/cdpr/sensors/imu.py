@@ -8,6 +8,7 @@ from typing import Any
 
 from cdpr.columns import ChannelField, Column, Series
 from cdpr.mechanics.robot import GRAVITY
+from cdpr.sensors import encoders
 from cdpr.sensors.base import Array, Param, Ros2Topic, SensorKind, Truth, vector
 
 ACCEL = "sensors/imu/accel"  # [ax, ay, az] specific force in the platform frame, m/s²
@@ -29,9 +30,9 @@ KIND = SensorKind(
             Param("gyro_bias", 0.0, "rad/s, body frame: one number or [x, y, z]", kind="bias3")),
     channels=(
         Column("accel", 3, "m/s²", "the IMU's specific force (acceleration minus gravity: +9.81 up at rest), "
-               "platform frame", series=(Series(ACCEL),), fields=(ChannelField("/sensors", "accel"),)),
+               "platform frame", series=(Series(ACCEL),), fields=(ChannelField(encoders.CHANNEL, "accel"),)),
         Column("gyro", 3, "rad/s", "the IMU's angular velocity, platform frame",
-               series=(Series(GYRO),), fields=(ChannelField("/sensors", "gyro"),)),
+               series=(Series(GYRO),), fields=(ChannelField(encoders.CHANNEL, "gyro"),)),
     ),
     draws=lambda spec, m: 6, measure=measure,
     ros2=(Ros2Topic("imu", "sensor_msgs/msg/Imu",

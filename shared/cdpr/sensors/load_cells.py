@@ -7,6 +7,7 @@ from __future__ import annotations
 from typing import Any
 
 from cdpr.columns import ChannelField, Column, Series
+from cdpr.sensors import encoders
 from cdpr.sensors.base import Array, Param, SensorKind, Truth, per_cable_bias, vector
 
 SERIES = "sensors/load_cells"  # m values: cable tensions the load cells measure, N
@@ -23,7 +24,7 @@ KIND = SensorKind(
             Param("bias", 0.0, "N: one number for every cell or one per cable", kind="bias")),
     channels=(Column("load_cells", None, "N", "the tensions the load cells measure at the winches (for sagging "
                      "cables, the frame-end tension), those of the step that led to this state, cable 0 first",
-                     series=(Series(SERIES),), fields=(ChannelField("/sensors", "load_cells"),)),),
+                     series=(Series(SERIES),), fields=(ChannelField(encoders.CHANNEL, "load_cells"),)),),
     draws=lambda spec, m: m, measure=measure,
     check=lambda spec, m: per_cable_bias(spec.bias, m, "bias"),
 )
