@@ -185,21 +185,13 @@ def test_a_new_sensor_kind_is_its_module_and_a_row(tmp_path: Path) -> None:
     run("-m", "cdpr", "convert", str(rrd), "--to", "mcap", "-o", str(converted))
     run("-m", "cdpr", "convert", str(rrd), "--to", "rosbag2", "-o", str(bag))
 
-    from rerun.chunk import RrdReader
+    from cdpr.tools.report import read_recording  # the project's reader of a .rrd's series (rerun.chunk.RrdReader)
 
-    recorded: dict[int, list[float]] = {}
-    for chunk in RrdReader(str(rrd)).stream().to_chunks():
-        if chunk.entity_path.lstrip("/") == "sensors/tracker_b" and not chunk.is_static:
-            batch = chunk.to_record_batch()
-            recorded.update(zip(batch.column("step").to_pylist(), batch.column("Scalars:scalars").to_pylist(),
-                                strict=True))
+    data = read_recording(rrd)
+    tracker, position = data.get("sensors/tracker_b"), data.get("actual/position")
+    recorded = dict(zip(tracker.step.tolist(), tracker.values.tolist(), strict=True))
+    actual = dict(zip(position.step.tolist(), position.values.tolist(), strict=True))
     assert sorted(recorded) == steps
-    actual: dict[int, list[float]] = {}
-    for chunk in RrdReader(str(rrd)).stream().to_chunks():
-        if chunk.entity_path.lstrip("/") == "actual/position" and not chunk.is_static:
-            batch = chunk.to_record_batch()
-            actual.update(zip(batch.column("step").to_pylist(), batch.column("Scalars:scalars").to_pylist(),
-                              strict=True))
     for k in steps:  # the platform frame's origin (the reflector's default place) when measured, within ~6 σ
         assert recorded[k] == pytest.approx(actual[k - 2], abs=3e-4)
 
