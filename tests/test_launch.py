@@ -160,3 +160,31 @@ def test_cpu_latency_without_access_says_what_it_needs(monkeypatch: pytest.Monke
         service.hold_cpu_latency(0)
     with pytest.raises(InputError, match="--cpu-latency: must be 0 or more microseconds"):
         service.hold_cpu_latency(-1)
+
+
+def test_the_monitor_waits_for_the_sims_last_telemetry_and_says_when_it_never_comes(
+        capsys: pytest.CaptureFixture[str]) -> None:
+    """A child's exit does not mean the launcher's router has handled what the child sent: the summary waits
+    for the telemetry of the clock's last step (CI, 2026-11-28: a 400-step run summarised as 201 steps)."""
+    import threading
+
+    from cdpr.protocol import State, Telemetry
+    from cdpr.tools.launch import Tape
+
+    pose = (0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 1.0)
+
+    def block(first: int, last: int) -> bytes:
+        return Telemetry(tuple(State(k, k / 1000, pose, (0.0,) * 6, (1.0,) * 4, (0.0,) * 4)
+                               for k in range(first, last + 1))).encode()
+
+    tape = Tape()
+    tape.items += [("telemetry", block(0, 49)), ("setpoints", b"\x80")]
+    assert tape.reached(4) == 49
+    rest = [("telemetry", block(50, 99)), ("telemetry", block(100, 100))]
+    late = threading.Timer(0.3, lambda: tape.items.extend(rest))
+    late.start()
+    assert tape.await_step(100, 4, timeout=60.0)  # returns once the last block is in, not after the timeout
+    late.join()
+    assert tape.reached(4) == 100
+    assert not tape.await_step(101, 4, timeout=0.05)  # never comes: said, not waited for forever
+    assert "telemetry came up to step 100 of 101" in capsys.readouterr().err

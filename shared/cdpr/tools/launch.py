@@ -62,6 +62,7 @@ STOP_GRACE = 4.0  # seconds a child gets to stop after SIGTERM before it is kill
 STOP_SIGNALS = {signal.SIGINT, signal.SIGTERM}
 FINISH_GRACE = 60.0  # after the clock's end, seconds the services get to leave by themselves (the recorder
 #                     may still be writing a large file)
+TELEMETRY_GRACE = 10.0  # after the services have left, seconds the monitor waits for the sim's last telemetry
 
 
 def free_port() -> int:
@@ -247,6 +248,28 @@ class Tape:
     def __init__(self) -> None:
         self.items: list[tuple[str, bytes]] = []  # (topic, payload) in arrival order
 
+    def reached(self, cables: int) -> int:
+        """The newest state step in the last telemetry block received (-1 before any): one link delivers in
+        order, so every block the sim sent before it is in too."""
+        for topic, payload in reversed(self.items):
+            if topic == "telemetry":
+                with contextlib.suppress(ProtocolError):
+                    return max((s.step for s in Telemetry.decode(payload, cables).states), default=-1)
+        return -1
+
+    def await_step(self, step: int, cables: int, timeout: float) -> bool:
+        """Wait until the telemetry has reached ``step`` (the clock's last), at most ``timeout`` s. A child's
+        exit does not mean that this process's router has handled what the child sent before it: the bytes
+        may still be in the socket, read later by Zenoh's thread — after the subscriber has gone."""
+        deadline = time.monotonic() + timeout
+        while (reached := self.reached(cables)) < step:
+            if time.monotonic() >= deadline:
+                log("cdpr", f"the sim's telemetry came up to step {reached} of {step} within {timeout:g} s of the "
+                    "end: the summary's figures cover those steps only")
+                return False
+            time.sleep(0.01)
+        return True
+
     def subscribe(self, session: zenoh.Session, key: str, topic: str) -> zenoh.Subscriber:
         add, pin = self.items.append, pin_thread_state
 
@@ -429,6 +452,8 @@ def run_session(scenario: Scenario, opts: RunOptions | None = None) -> int:
                 monitor.poll(0.0)
             else:
                 codes = _watch_children(children, monitor, stop, opts, listen_eps)
+            if monitor.finished and monitor.final is not None and monitor.final.step >= scenario.total_steps:
+                tape.await_step(monitor.final.step, scenario.robot.m, TELEMETRY_GRACE)  # the whole run's
         finally:
             for s in subs:
                 s.undeclare()
