@@ -97,7 +97,9 @@ def _run(scenario: str | Path, *args: str) -> tuple[dict, str]:
 def test_caroca_15kg_from_its_sensors_tracks_within_the_bounds(tmp_path: Path) -> None:
     """The whole caroca_15kg with its controller fed by the encoders and the IMU: RMS tracking error (the truth's)
     ≤ 1 mm and ≤ 3 × the truth-fed session's; the distributed loop and the in-process one give the same digest; the
-    controller received no sim/state message (its own count)."""
+    controller received no sim/state message (its own count). Its estimate of every state goes with its command into
+    the recording (estimate/* beside actual/*, and the estimate's errors) and the summary; a truth-fed session has
+    none."""
     spec = yaml.safe_load((ROOT / "shared/cdpr/scenarios/caroca_15kg_sensors.yaml").read_text(encoding="utf-8"))
     spec["controller"]["feedback"] = "state"
     spec["name"] = "caroca_15kg_sensors_truth"
@@ -105,10 +107,14 @@ def test_caroca_15kg_from_its_sensors_tracks_within_the_bounds(tmp_path: Path) -
     truth_fed.write_text(yaml.safe_dump(spec), encoding="utf-8")
     truth, _ = _run(truth_fed, "--in-process")
     local, local_log = _run("caroca_15kg_sensors", "--in-process")
-    distributed, log = _run("caroca_15kg_sensors")
+    rrd = tmp_path / "sensors.rrd"
+    distributed, log = _run("caroca_15kg_sensors", "--rrd", str(rrd))
     for s in (truth, local, distributed):
         assert s["exit_ok"], s
         assert s["steps"] == s["total_steps"] == 11000
+    _check_the_recorded_estimate(rrd, distributed)
+    assert "rms_estimate_position_error" not in truth  # it read the truth: no estimate
+    assert local["rms_estimate_position_error"] == distributed["rms_estimate_position_error"]
     assert local["state_digest"] == distributed["state_digest"]
     assert local["rms_position_error"] <= 1e-3
     assert local["rms_position_error"] <= 3 * truth["rms_position_error"]
@@ -118,6 +124,30 @@ def test_caroca_15kg_from_its_sensors_tracks_within_the_bounds(tmp_path: Path) -
         counts = dict((name, int(n)) for n, name in re.findall(r"(\d+) (\w+)", received.group(1)))
         assert "state" not in counts, received.group(0)
         assert counts["sensors"] >= 11000, received.group(0)
+
+
+def _check_the_recorded_estimate(rrd: Path, summary: dict) -> None:
+    """The estimate of every state the controller answered is in the recording, its errors are those of the estimate
+    against the recorded state, and the summary's figures are those of the recording (cdpr report's too)."""
+    from cdpr.mechanics.estimation import estimate_errors
+    from cdpr.tools.report import read_recording, summarize
+
+    data = read_recording(rrd)
+    position, quaternion = data.get("estimate/position"), data.get("estimate/quaternion")
+    assert position.step.tolist() == list(range(11000))  # one per command: states 0 … 10999
+    actual = np.hstack([data.get("actual/position").at(position.step), data.get("actual/quaternion").at(position.step)])
+    estimated = np.hstack([position.values, quaternion.at(position.step)])
+    dp, dr = estimate_errors(estimated, actual)
+    assert np.array_equal(data.get("estimate/error/position").values[:, 0], dp)
+    assert np.array_equal(data.get("estimate/error/orientation").values[:, 0], dr)
+    assert data.get("estimate/twist").values.shape == (11000, 6)
+    assert 0.0 < summary["rms_estimate_position_error"] <= 1e-4  # the encoders' noise, filtered (~7 µm)
+    assert summary["rms_estimate_position_error"] == pytest.approx(float(np.sqrt(np.mean(dp * dp))), rel=1e-12)
+    assert 0.0 < summary["rms_estimate_orientation_error"] <= 1e-3
+    report = summarize(data)
+    for key in ("rms_estimate_position_error", "max_estimate_position_error", "rms_estimate_orientation_error",
+                "max_estimate_orientation_error"):
+        assert report[key] == pytest.approx(summary[key], rel=1e-12), key
 
 
 @pytest.mark.slow
@@ -146,4 +176,6 @@ def test_the_remote_example_from_its_sensors_tracks_within_the_bounds(tmp_path: 
         assert s["exit_ok"] is True
         assert s["steps"] == 11000
     assert results["sensors"]["rms_position_error"] <= 1e-3
+    assert 0.0 < results["sensors"]["rms_estimate_position_error"] <= 1e-4  # the SDK sends its estimate too
+    assert "rms_estimate_position_error" not in results["state"]
     assert results["sensors"]["rms_position_error"] <= 3 * results["state"]["rms_position_error"]

@@ -216,3 +216,38 @@ def test_every_fault_counter_of_a_subscribed_topic_is_documented() -> None:
     for name, topic in TOPICS.items():
         if wiring.subscribers(name) and topic.bad:
             assert f"`{topic.bad}`" in DOC, f"{topic.bad} (dropping a bad {name}) missing from docs/protocol.md"
+
+
+def test_a_commands_estimate_round_trips_alone_and_in_telemetry_and_a_bad_one_is_refused_by_name() -> None:
+    """``Command.estimate`` (a controller fed from the sensors): 13 numbers, on the command and in the sim's telemetry
+    (flat over the commands that have one, ``estimate_rows`` when not all do); both decoders agree."""
+    from cdpr.protocol.streams import ESTIMATE_WIDTH
+
+    assert ESTIMATE_WIDTH == 13
+    estimate = tuple(0.5 + i for i in range(13))
+    cmd = Command(7, 0.007, (1.0, 2.0, 3.0, 4.0), estimate=estimate)
+    assert Command.decode(cmd.encode()) == cmd == Command._checked(cmd.encode())
+    assert "estimate" not in msgpack.unpackb(Command(7, 0.007, (1.0,) * 4).encode())  # absent: the wire as before
+    raw = msgpack.unpackb(cmd.encode())
+    for bad, says in ((list(estimate[:12]), "estimate: expected 13 numbers, got 12"),
+                      ([*estimate[:12], float("nan")], "estimate[12]: must be finite")):
+        with pytest.raises(ProtocolError, match=re.escape(says)):
+            Command.decode(msgpack.packb({**raw, "estimate": bad}))
+    states = _states(3)
+    commands = (Command(0, 0.0, (1.0,) * 8, estimate=estimate), Command(1, 0.001, (1.0,) * 8),
+                Command(2, 0.002, (1.0,) * 8, estimate=estimate[::-1]))
+    block = Telemetry(states, commands, (1e-4,) * 3)
+    wire = msgpack.unpackb(block.encode())["command"]
+    assert wire["estimate_rows"] == [0, 2]
+    assert len(wire["estimate"]) == 26
+    assert Telemetry.decode(block.encode(), 8).commands == commands == Telemetry._checked(block.encode(), 8).commands
+    every = Telemetry(states, tuple(c if c.estimate else Command(1, 0.001, (1.0,) * 8, estimate=estimate)
+                                    for c in commands), (1e-4,) * 3)
+    assert "estimate_rows" not in msgpack.unpackb(every.encode())["command"]
+    assert Telemetry.decode(every.encode(), 8) == every
+    for change, says in (({"estimate_rows": [0, 3]}, "command.estimate_rows: expected distinct rows below 3"),
+                         ({"estimate": wire["estimate"][:-1]}, "estimate: expected 26 numbers, got 25")):
+        bad = msgpack.unpackb(block.encode())
+        bad["command"].update(change)
+        with pytest.raises(ProtocolError, match=re.escape(says)):
+            Telemetry.decode(msgpack.packb(bad), 8)

@@ -127,12 +127,13 @@ class ControllerNode(Node):
             self.warn("infeasible", f"step {state.step}: tension distribution {result.status} "
                       f"(residual {result.residual:.3g}); sending the nearest admissible tensions")
         assert self._pub is not None
+        estimate = None if self.feedback is None else (*state.pose, *state.twist)  # what it answered: recorded
         self._pub.put(
             Command(state.step, state.t, tuple(result.tensions.tolist()), result.feasible, result.status,
-                    None, solve_time).encode()
+                    None, solve_time, estimate).encode()
             if lengths is None else
             Command(state.step, state.t, (), result.feasible, result.status, tuple(lengths.tolist()),
-                    solve_time).encode()
+                    solve_time, estimate).encode()
         )
         self.pairing.done(state.step)
 

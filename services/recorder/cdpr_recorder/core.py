@@ -10,6 +10,8 @@ as numpy columns, ready for one ``rr.send_columns`` per entity. Rules:
   state (after the last tick) has no setpoint and no error — the definitions of
   :meth:`cdpr.tools.metrics.RunMetrics.errors`.
 * Tensions are those the sim applied over [t − dt, t], so state 0 (nothing applied yet) has none.
+* A command's estimate (a controller fed from the sensors) is of the state of its step: its errors pair the two
+  (:func:`cdpr.mechanics.estimation.estimate_errors`), the state kept for the last :data:`POSE_HISTORY` steps.
 * 3D rows are decimated: every ``scene_every``-th state, plus the final one. The travelled path gets a
   point every ``path_every`` steps (and the final state) and is re-sent whole at each new point.
 """
@@ -22,12 +24,14 @@ from typing import Any
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from cdpr.mechanics.estimation import estimate_errors
 from cdpr.protocol import Command, Sensors, Setpoint, State, Status
-from cdpr.protocol.streams import STATE_COLUMNS
+from cdpr.protocol.streams import ESTIMATE_WIDTH, STATE_COLUMNS
 from cdpr.sensors import SENSOR_COLUMNS
 
 F64 = NDArray[np.float64]
 I64 = NDArray[np.int64]
+POSE_HISTORY = 10_000  # steps of state poses kept for the estimates that answer them (a command comes after its state)
 
 
 @dataclass(frozen=True)
@@ -76,6 +80,7 @@ class CommandRows:
     values: F64  # (n, m) the commanded tensions (N) or unstretched lengths (m)
     solve_time: F64  # s the controller took (NaN: not reported)
     lag: F64  # s from the state going out to the step's integration
+    estimate: dict[str, F64]  # the estimate's and its errors' columns: (n, width) or (n,), NaN where none
 
 
 @dataclass(frozen=True)
@@ -197,6 +202,7 @@ class RecorderCore:
     seen_setpoints: set[int] = field(default_factory=set)
     seen_commands: set[int] = field(default_factory=set)
     seen_sensors: set[int] = field(default_factory=set)
+    poses: dict[int, tuple[float, ...]] = field(default_factory=dict)  # the last POSE_HISTORY states' poses
     waiting_states: dict[int, State] = field(default_factory=dict)  # no setpoint yet
     waiting_setpoints: dict[int, Setpoint] = field(default_factory=dict)  # no state yet
     last_setpoint: Setpoint | None = None
@@ -217,6 +223,9 @@ class RecorderCore:
             return False
         self.seen_states.add(s.step)
         self.states.append(s)
+        self.poses[s.step] = s.pose
+        if len(self.poses) > POSE_HISTORY:
+            del self.poses[next(iter(self.poses))]
         if self.last_state is None or s.step > self.last_state.step:
             self.last_state = s
         sp = self.waiting_setpoints.pop(s.step, None)
@@ -314,6 +323,7 @@ class RecorderCore:
             values=_rows([c.values for c, _ in commands], m),
             solve_time=np.asarray([np.nan if c.solve_time is None else c.solve_time for c, _ in commands], dtype=float),
             lag=np.asarray([lag for _, lag in commands], dtype=float),
+            estimate=self._estimates([c for c, _ in commands]),
         )
         sensor_rows = SensorRows(
             step=_ids([r.step for r in sensors]),
@@ -334,6 +344,21 @@ class RecorderCore:
             state_rows, setpoint_rows, command_rows, error_rows, statuses, self._path_rows(states, final_step),
             sensor_rows,
         )
+
+    def _estimates(self, commands: list[Command]) -> dict[str, F64]:
+        """The commands' estimates and their errors against the states of their steps, NaN where none."""
+        n = len(commands)
+        rows = np.full((n, ESTIMATE_WIDTH), np.nan)
+        position, orientation = np.full(n, np.nan), np.full(n, np.nan)
+        have = [j for j, c in enumerate(commands) if c.estimate is not None]
+        if have:
+            rows[have] = [commands[j].estimate for j in have]
+            paired = [j for j in have if commands[j].step in self.poses]
+            if paired:
+                position[paired], orientation[paired] = estimate_errors(
+                    rows[paired, :7], [self.poses[commands[j].step] for j in paired])
+        return {"pose": rows[:, :7], "twist": rows[:, 7:], "position_error": position,
+                "orientation_error": orientation}
 
     def _path_rows(self, states: list[State], final_step: int | None) -> PathRows:
         steps: list[int] = []

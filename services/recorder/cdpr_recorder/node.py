@@ -28,7 +28,7 @@ from cdpr.config.scenario import Scenario
 from cdpr.errors import InputError
 from cdpr.protocol import CameraFrame, CameraImage, Keys, ProtocolError, Setpoints, Status, Telemetry
 from cdpr.protocol.session import session_info
-from cdpr.protocol.streams import STATE, STATE_COLUMNS
+from cdpr.protocol.streams import ESTIMATE_COLUMNS, ESTIMATE_ERROR_COLUMNS, STATE, STATE_COLUMNS
 from cdpr.runtime.options import RECORDER_OPTIONS, add_options
 from cdpr.runtime.service import Node
 from cdpr.runtime.transport import Event, RateLimitedLog, log
@@ -239,6 +239,7 @@ class RecorderNode(Node):
         fox.setpoints(sp.step, sp.t, sp.pose, sp.scene)
         c = b.commands
         fox.commands(c.step, c.t, c.kind, c.values, c.feasible, c.status, c.solve_time, c.lag)
+        fox.estimates(c.step, c.t, c.estimate)
         e = b.errors
         fox.errors(e.step, e.t, e.position, e.orientation)
         r = b.sensors
@@ -291,6 +292,11 @@ class RecorderNode(Node):
             timed = ~np.isnan(c.solve_time)
             recording.send_scalars(rec, recording.COMMAND_SOLVE_TIME, c.step[timed], c.t[timed], c.solve_time[timed])
             recording.send_scalars(rec, recording.LOOP_LAG, c.step, c.t, c.lag)
+            for columns in (ESTIMATE_COLUMNS, ESTIMATE_ERROR_COLUMNS):  # the rows with one (feedback: sensors)
+                has = ~np.isnan(c.estimate[columns[0].name].reshape(len(c.step), -1)[:, 0])
+                if has.any():
+                    recording.send_columns_series(rec, columns, c.step[has], c.t[has],
+                                                  {col.name: c.estimate[col.name][has] for col in columns})
             recording.send_text(
                 rec,
                 recording.COMMAND_STATUS,

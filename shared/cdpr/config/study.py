@@ -54,6 +54,11 @@ SUMMARY_METRICS = {
     "command_age_max": "largest command age, steps",
     "watchdog_steps": "steps on which the sim's watchdog policy acted",
     "on_time_fraction": "realtime: the share of ticks (free-running: steps) within dt of their deadline",
+    # a controller fed from the sensors (controller.feedback: sensors): its estimate of each state against the state
+    "rms_estimate_position_error": "RMS position error of the controller's estimate, m",
+    "max_estimate_position_error": "largest position error of the controller's estimate, m",
+    "rms_estimate_orientation_error": "RMS orientation error of the controller's estimate, rad",
+    "max_estimate_orientation_error": "largest orientation error of the controller's estimate, rad",
 }
 # ... and these, derived from the summary and the point's scenario
 DERIVED_METRICS = {

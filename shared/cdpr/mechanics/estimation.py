@@ -156,3 +156,17 @@ class PoseEstimator:
             c -= k1 * c
         self.w = w
         self.R = rotvec_matrix(*angle.tolist()) @ self.R
+
+
+def estimate_errors(estimated: ArrayLike, actual: ArrayLike) -> tuple[Array, Array]:
+    """Per row of two (n, 7) pose arrays (x, y, z, qx, qy, qz, qw): the distance between the positions (m) and the
+    angle of the rotation from one orientation to the other (rad, in [0, π]; a quaternion's sign does not count),
+    as 4·atan2(‖q₁ − q₂‖, ‖q₁ + q₂‖) with q₂ on q₁'s side: accurate near 0, where an arccos of a dot is not."""
+    e = np.asarray(estimated, dtype=float).reshape(-1, 7)
+    a = np.asarray(actual, dtype=float).reshape(-1, 7)
+    position = np.linalg.norm(e[:, :3] - a[:, :3], axis=1)
+    q1 = e[:, 3:] / np.linalg.norm(e[:, 3:], axis=1, keepdims=True)
+    q2 = a[:, 3:] / np.linalg.norm(a[:, 3:], axis=1, keepdims=True)
+    q2 = np.where(np.sum(q1 * q2, axis=1, keepdims=True) < 0.0, -q2, q2)
+    angle = 4.0 * np.arctan2(np.linalg.norm(q1 - q2, axis=1), np.linalg.norm(q1 + q2, axis=1))
+    return position, angle

@@ -31,7 +31,7 @@ import msgspec
 from msgspec import UNSET, UnsetType
 
 from cdpr.mechanics.outputs import COMMAND_KINDS, CommandKind
-from cdpr.protocol.streams import STATE_COLUMNS
+from cdpr.protocol.streams import ESTIMATE_WIDTH, STATE_COLUMNS
 from cdpr.protocol.wiring import TOPICS, WIRING
 from cdpr.sensors import SENSOR_COLUMNS
 
@@ -435,7 +435,10 @@ class Command(msgspec.Struct, frozen=True, gc=False):
     clamps each to [0, tmax] (a cable only pulls) and counts the clamps. ``lengths`` (a session whose
     scenario has ``controller.output: lengths``: winch-driven cables) must be finite and > 0; in a
     Python ``Command`` of lengths, ``tensions`` is ``()``. Optional ``feasible``/``status`` report the
-    controller's tension distribution outcome.
+    controller's tension distribution outcome. Optional ``estimate`` (a controller fed from the sensors:
+    ``controller.feedback: sensors``): the pose and twist it estimated for state ``step`` and answered, the
+    columns of :data:`cdpr.protocol.streams.ESTIMATE_COLUMNS` (13 numbers: x, y, z, qx, qy, qz, qw, vx, vy, vz,
+    wx, wy, wz); the sim passes it on in its telemetry, for the recording and the summary.
     """
 
     step: int
@@ -445,6 +448,7 @@ class Command(msgspec.Struct, frozen=True, gc=False):
     status: str = "ok"
     lengths: tuple[float, ...] | None = None
     solve_time: float | None = None  # s the controller spent on this step (optional)
+    estimate: tuple[float, ...] | None = None  # the pose and twist the command answered (ESTIMATE_WIDTH numbers)
 
     @property
     def kind(self) -> CommandKind:
@@ -461,21 +465,26 @@ class Command(msgspec.Struct, frozen=True, gc=False):
         return _ENCODER.encode(_CommandOut(
             PROTOCOL_VERSION, self.step, self.t, self.tensions if lengths is None else UNSET,
             UNSET if lengths is None else lengths, bool(self.feasible), self.status,
-            UNSET if self.solve_time is None else self.solve_time))
+            UNSET if self.solve_time is None else self.solve_time,
+            UNSET if self.estimate is None else self.estimate))
 
     @classmethod
     def decode(cls, payload: bytes, cables: int | None = None, expect: CommandKind | None = None) -> Command:
         """``expect`` (``"tensions"`` or ``"lengths"``): the kind the receiver takes (the other: an error)."""
         f = _fast(_COMMAND, payload)
         if f is not None:
-            step, t, tensions, lengths, feasible, status, solve_time = f
+            step, t, tensions, lengths, feasible, status, solve_time, estimate = f
             solve = None if solve_time is UNSET else solve_time
+            if estimate is UNSET:
+                estimate = None
+            elif len(estimate) != ESTIMATE_WIDTH:
+                return cls._checked(payload, cables, expect)
             if lengths is UNSET:
                 if tensions is not UNSET and expect != "lengths" and (cables is None or len(tensions) == cables):
-                    return cls(step, t, tensions, feasible, status, None, solve)
+                    return cls(step, t, tensions, feasible, status, None, solve, estimate)
             elif (tensions is UNSET and expect != "tensions" and (cables is None or len(lengths) == cables)
                   and (not lengths or min(lengths) > 0.0)):
-                return cls(step, t, (), feasible, status, lengths, solve)
+                return cls(step, t, (), feasible, status, lengths, solve, estimate)
         return cls._checked(payload, cables, expect)
 
     @classmethod
@@ -489,10 +498,11 @@ class Command(msgspec.Struct, frozen=True, gc=False):
             raise ProtocolError(f"status: expected a string, got {type(status).__name__}")
         step, t = _int(msg, "step"), _float(msg, "t")
         solve_time = _float(msg, "solve_time") if "solve_time" in msg else None
+        estimate = _vector(msg, "estimate", ESTIMATE_WIDTH) if "estimate" in msg else None
         if "lengths" not in msg:
             if expect == "lengths":
                 raise ProtocolError("lengths: missing (this session's controller commands cable lengths)")
-            return cls(step, t, _vector(msg, "tensions", cables), feasible, status, None, solve_time)
+            return cls(step, t, _vector(msg, "tensions", cables), feasible, status, None, solve_time, estimate)
         if "tensions" in msg:
             raise ProtocolError("lengths: a command carries tensions or lengths, not both")
         if expect == "tensions":
@@ -501,12 +511,13 @@ class Command(msgspec.Struct, frozen=True, gc=False):
         for i, x in enumerate(lengths):
             if x <= 0.0:
                 raise ProtocolError(f"lengths[{i}]: must be > 0, got {x}")
-        return cls(step, t, (), feasible, status, lengths, solve_time)
+        return cls(step, t, (), feasible, status, lengths, solve_time, estimate)
 
 
 _COMMAND_FIELDS: list[_WireField] = [
     ("step", Count), ("t", Finite), ("tensions", Floats | UnsetType, UNSET), ("lengths", Floats | UnsetType, UNSET),
-    ("feasible", bool, True), ("status", str, "ok"), ("solve_time", Finite | UnsetType, UNSET)]
+    ("feasible", bool, True), ("status", str, "ok"), ("solve_time", Finite | UnsetType, UNSET),
+    ("estimate", Floats | UnsetType, UNSET)]
 _COMMAND = _wire("CommandWire", _COMMAND_FIELDS)
 _CommandOut = msgspec.defstruct("CommandOut", [("v", int), *_COMMAND_FIELDS], frozen=True, gc=False)
 
@@ -683,6 +694,11 @@ class Telemetry:
         }
         if self.lateness:
             msg["command"]["lateness"] = _floats(self.lateness)
+        if any(x.estimate is not None for x in c):  # the rows that have one (estimate_rows: which, if not all)
+            rows = [i for i, x in enumerate(c) if x.estimate is not None]
+            msg["command"]["estimate"] = _chain(c[i].estimate for i in rows)
+            if len(rows) != len(c):
+                msg["command"]["estimate_rows"] = rows
         if self.resume is not None:
             msg["resume"] = self.resume.as_map()
         if r:
@@ -721,9 +737,19 @@ class Telemetry:
             raise ProtocolError(f"command.status: expected {k} strings")
         solve, lags = _vector(c, "solve_time", k), _vector(c, "lag", k)
         lateness = _vector(c, "lateness", k) if "lateness" in c else ()
+        estimates: list[tuple[float, ...] | None] = [None] * k
+        if "estimate" in c:
+            rows = _ints(c, "estimate_rows") if "estimate_rows" in c else list(range(k))
+            if any(x >= k for x in rows) or len(set(rows)) != len(rows):
+                raise ProtocolError(f"command.estimate_rows: expected distinct rows below {k}")
+            flat = _vector(c, "estimate", len(rows) * ESTIMATE_WIDTH)
+            for n, row in enumerate(rows):
+                estimates[row] = flat[n * ESTIMATE_WIDTH:(n + 1) * ESTIMATE_WIDTH]
+        elif "estimate_rows" in c:
+            raise ProtocolError("command.estimate_rows: rows of an estimate the block does not have")
         commands = tuple(
             Command(c_steps[i], c_t[i], values[i] if kind == "tensions" else (), feasible[i], status[i],
-                    values[i] if kind == "lengths" else None, solve[i] if solve[i] >= 0.0 else None)
+                    values[i] if kind == "lengths" else None, solve[i] if solve[i] >= 0.0 else None, estimates[i])
             for i in range(k)
         )
         sensors: tuple[Sensors, ...] = ()
@@ -758,7 +784,8 @@ class Telemetry:
 _COMMAND_BLOCK = msgspec.defstruct("CommandBlockWire", [
     ("step", list[Count]), ("t", Floats), ("kind", Literal["tensions", "lengths"]), ("values", Floats),
     ("feasible", list[bool]), ("status", list[str]), ("solve_time", Floats), ("lag", Floats),
-    ("lateness", Floats | UnsetType, UNSET)], frozen=True, gc=False)
+    ("lateness", Floats | UnsetType, UNSET), ("estimate", Floats | UnsetType, UNSET),
+    ("estimate_rows", list[Count] | UnsetType, UNSET)], frozen=True, gc=False)
 _SENSORS_BLOCK = msgspec.defstruct("SensorsBlockWire", [
     ("step", list[Count]), ("t", Floats), *((c.name, Floats | UnsetType, UNSET) for c in SENSOR_COLUMNS),
     ("rows", dict[str, list[Count]] | UnsetType, UNSET)], frozen=True, gc=False)
@@ -815,10 +842,20 @@ def _telemetry(f: tuple[Any, ...], cables: int | None) -> Telemetry | None:
         return None
     values = _split(c.values, k, m) if k else []
     tensions = c.kind == "tensions"
+    estimates: list[Any] = [None] * k
+    if c.estimate is not UNSET:
+        rows = range(k) if c.estimate_rows is UNSET else c.estimate_rows
+        if len(c.estimate) != len(rows) * ESTIMATE_WIDTH or (c.estimate_rows is not UNSET and (
+                len(set(rows)) != len(rows) or any(x >= k for x in rows))):
+            return None
+        for n, row in enumerate(rows):
+            estimates[row] = tuple(c.estimate[n * ESTIMATE_WIDTH:(n + 1) * ESTIMATE_WIDTH])
+    elif c.estimate_rows is not UNSET:
+        return None
     commands = tuple(Command(step, ct, v if tensions else (), ok, status, None if tensions else v,
-                             solve if solve >= 0.0 else None)
-                     for step, ct, v, ok, status, solve in zip(c.step, c.t, values, c.feasible, c.status,
-                                                               c.solve_time, strict=False))
+                             solve if solve >= 0.0 else None, e)
+                     for step, ct, v, ok, status, solve, e in zip(c.step, c.t, values, c.feasible, c.status,
+                                                                  c.solve_time, estimates, strict=False))
     sensors: tuple[Sensors, ...] = ()
     if r is not UNSET:
         j = len(r.step)

@@ -52,3 +52,31 @@ STATE_COLUMNS: tuple[Column, ...] = (
            fields=(ChannelField(COMMAND_TIMING, "watchdog"),)),
 )
 STATE = {c.name: c for c in STATE_COLUMNS}
+
+# The estimate a controller fed from the sensors answers (controller.feedback: sensors): ``Command.estimate``,
+# carried on in the sim's telemetry; the recording's and the summary's ``estimate/*``, beside ``actual/*``.
+ESTIMATE_POSITION = "estimate/position"  # [x, y, z] the controller estimated, m
+ESTIMATE_QUATERNION = "estimate/quaternion"  # [qx, qy, qz, qw]
+ESTIMATE_TWIST = "estimate/twist"  # [vx, vy, vz, wx, wy, wz], m/s and rad/s
+ESTIMATE_ERROR_POSITION = "estimate/error/position"  # ‖estimated − actual‖ of the centre of mass, m
+ESTIMATE_ERROR_ORIENTATION = "estimate/error/orientation"  # the angle between the two orientations, rad
+PLATFORM_ESTIMATE = "/platform/estimate"  # Foxglove JSON channel
+
+ESTIMATE_COLUMNS: tuple[Column, ...] = (
+    Column("pose", 7, "m, 1", "the controller's estimate of the pose of state k: x, y, z of the centre of mass and "
+           "the quaternion qx, qy, qz, qw, world frame",
+           series=(Series(ESTIMATE_POSITION, 0, 3), Series(ESTIMATE_QUATERNION, 3, 7)),
+           fields=(ChannelField(PLATFORM_ESTIMATE, "position", 0, 3),
+                   ChannelField(PLATFORM_ESTIMATE, "quaternion", 3, 7))),
+    Column("twist", 6, "m/s, rad/s", "the controller's estimate of the twist of state k: vx, vy, vz, wx, wy, wz, "
+           "world frame", series=(Series(ESTIMATE_TWIST),), fields=(ChannelField(PLATFORM_ESTIMATE, "twist"),)),
+)
+ESTIMATE_WIDTH = sum(c.width or 0 for c in ESTIMATE_COLUMNS)  # numbers of Command.estimate: 13
+# what the recording derives from the estimate and the state of the same step
+ESTIMATE_ERROR_COLUMNS: tuple[Column, ...] = (
+    Column("position_error", 1, "m", "‖estimated − actual‖ of the centre of mass at step k",
+           series=(Series(ESTIMATE_ERROR_POSITION),), fields=(ChannelField(PLATFORM_ESTIMATE, "position_error"),)),
+    Column("orientation_error", 1, "rad", "the angle of the rotation from the actual to the estimated orientation",
+           series=(Series(ESTIMATE_ERROR_ORIENTATION),),
+           fields=(ChannelField(PLATFORM_ESTIMATE, "orientation_error"),)),
+)

@@ -39,7 +39,10 @@ from cdpr.mechanics.robot import Robot
 from cdpr.mechanics.rotation import matrix_to_quat
 from cdpr.protocol.streams import (
     COMMAND_TIMING,
+    ESTIMATE_COLUMNS,
+    ESTIMATE_ERROR_COLUMNS,
     LENGTHS,
+    PLATFORM_ESTIMATE,
     PLATFORM_STATE,
     STATE_COLUMNS,
     TENSIONS,
@@ -73,6 +76,8 @@ COMMAND = "/command"  # JSON every command: commanded values, feasibility, TDA s
 SENSORS = encoders.CHANNEL  # "/sensors": JSON every reading (scenarios with sensors): encoders, load cells, IMU
 # ... and each sensor channel's own: their fields are declared with the sensors' columns (cdpr.sensors), e.g.
 # /sensors/laser_tracker
+# PLATFORM_ESTIMATE (/platform/estimate): JSON every command with an estimate (controller.feedback: sensors), the
+# controller's estimate of state k and its errors; fields declared with ESTIMATE_COLUMNS and ESTIMATE_ERROR_COLUMNS
 CLOCK = "/clock/status"  # JSON about once a second: the clock's state and stats
 # Cameras (scenario sim.cameras), per camera NAME: /camera/NAME/image (foxglove.CompressedImage, JPEG, with
 # image: true), /camera/NAME/calibration (foxglove.CameraCalibration, with each frame),
@@ -127,6 +132,10 @@ _STATE_CHANNELS = {
 
 _SENSOR_CHANNELS: dict[str, tuple[str, str, dict[str, Any]]] = {
     SENSORS: ("cdpr.Sensors", "noisy sensor readings taken with state k", {})}
+ESTIMATE_STREAM = ESTIMATE_COLUMNS + ESTIMATE_ERROR_COLUMNS  # the columns of the /platform/estimate channel
+_ESTIMATE_CHANNELS: dict[str, tuple[str, str, dict[str, Any]]] = {
+    PLATFORM_ESTIMATE: ("cdpr.PlatformEstimate", "the pose and twist of state k a controller fed from the sensors "
+                        "estimated (its command k), and their errors against state k", {})}
 
 
 def state_channels(columns: Sequence[Column] = STATE_COLUMNS) -> dict[str, list[tuple[Column, ChannelField]]]:
@@ -181,6 +190,7 @@ def json_schemas(m: int) -> dict[str, dict[str, Any]]:
             "lag": {**_NUM, "description": "s from the state going out to the step's integration"},
         }),
         **_state_schemas(m, SENSOR_COLUMNS, _SENSOR_CHANNELS),
+        **_state_schemas(m, ESTIMATE_STREAM, _ESTIMATE_CHANNELS),
         CLOCK: _schema("cdpr.ClockStatus", "the clock's status (about once a second)", {
             "state": {"type": "string", "description": "waiting, running, paused, finished or aborted"},
             "reason": {"type": "string"},
@@ -513,12 +523,21 @@ class FoxgloveSink:
         """Sensor rows: ``columns`` holds each channel of SENSOR_COLUMNS that some row has, (n, width), NaN in the
         rows without it; a JSON channel gets the rows that have one of its fields, a field without a reading in a
         row written as nulls there (a kind with another rate, or a lost reading)."""
+        self._column_rows(SENSOR_COLUMNS, step, t, columns)
+
+    def estimates(self, step: ArrayLike, t: ArrayLike, columns: Mapping[str, ArrayLike]) -> None:
+        """Estimate rows (``ESTIMATE_STREAM``'s columns, NaN in the rows of commands without one): the
+        /platform/estimate channel."""
+        self._column_rows(ESTIMATE_STREAM, step, t, columns)
+
+    def _column_rows(self, declared: Sequence[Column], step: ArrayLike, t: ArrayLike,
+                     columns: Mapping[str, ArrayLike]) -> None:
         k = np.asarray(step, dtype=np.int64)
         if not len(k):
             return
         tt = np.asarray(t, dtype=float)
         values = {name: np.asarray(v, dtype=float).reshape(len(k), -1) for name, v in columns.items()}
-        for channel, all_parts in state_channels(SENSOR_COLUMNS).items():
+        for channel, all_parts in state_channels(declared).items():
             parts = [(c, f) for c, f in all_parts if c.name in values]  # the fields of the kinds configured
             if not parts:
                 continue
@@ -527,7 +546,8 @@ class FoxgloveSink:
             def make(rows: NDArray[np.bool_] = rows, parts: list[tuple[Column, ChannelField]] = parts) -> list[bytes]:
                 fields: dict[str, Any] = {"step": k[rows], "t": tt[rows]}
                 for c, f in parts:
-                    fields[f.name] = values[c.name][rows][:, f.first:f.end]
+                    part = values[c.name][rows][:, f.first:f.end]
+                    fields[f.name] = part[:, 0] if c.width == 1 else part  # a one-number column: a number
                 return json_rows(fields)
 
             self._emit(channel, tt[rows], make)

@@ -320,6 +320,8 @@ def blueprint(tension_range: tuple[float, float] | None = None, cameras: Sequenc
     more = rrb.Tabs(
         rrb.TimeSeriesView(origin=ORIENTATION_ERROR, name="Orientation error (rad)"),
         rrb.TimeSeriesView(origin=ACTUAL_TWIST, name="Twist"),
+        # a controller fed from the sensors (controller.feedback: sensors): its estimate's errors (empty otherwise)
+        rrb.TimeSeriesView(origin="estimate/error", name="Estimation error (m, rad)"),
         rrb.TimeSeriesView(origin=CABLE_LENGTHS, name="Cable lengths (m)"),
         rrb.TimeSeriesView(origin="command", name="Controller"),
         rrb.TimeSeriesView(origin="latency", name="Command age (steps), watchdog"),

@@ -309,7 +309,9 @@ class _ControllerNode(Node):
         feasible = bool(getattr(result, "feasible", True))
         status = str(getattr(result, "status", "ok"))
         assert self._pub is not None
-        self._pub.put(Command(state.step, state.t, tuple(tensions.tolist()), feasible, status).encode())
+        estimate = None if self.feedback is None else (*state.pose, *state.twist)  # what it answered: recorded
+        self._pub.put(Command(state.step, state.t, tuple(tensions.tolist()), feasible, status, None, None,
+                              estimate).encode())
         now = time.monotonic()
         r = self.report
         r.answered += 1

@@ -1,8 +1,9 @@
 """Run metrics computed from the message streams (pure; used by `cdpr run` and the recorder).
 
-Errors compare the sim's state k with the trajectory's setpoint k (the same step). The state digest is
-SHA-256 over the encoded states in step order: two runs with equal digests produced bit-identical state
-streams.
+Errors compare the sim's state k with the trajectory's setpoint k (the same step); a controller fed from the
+sensors sends its estimate of state k with command k, and the estimate's errors compare it with state k.
+The state digest is SHA-256 over the encoded states in step order: two runs with equal digests produced
+bit-identical state streams.
 """
 
 from __future__ import annotations
@@ -13,6 +14,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from cdpr.mechanics.estimation import estimate_errors
 from cdpr.mechanics.rotation import orientation_error, quat_to_matrix
 from cdpr.protocol import Command, Setpoint, State
 
@@ -25,6 +27,7 @@ class RunMetrics:
     infeasible_commands: int = 0
     commands: int = 0
     command_steps: set[int] = field(default_factory=set)
+    estimates: dict[int, tuple[float, ...]] = field(default_factory=dict)  # step -> the command's estimate
 
     def add_state(self, state: State) -> None:
         if state.step not in self.states:  # a resent state is the same state
@@ -39,6 +42,8 @@ class RunMetrics:
             return
         self.command_steps.add(cmd.step)
         self.commands += 1
+        if cmd.estimate is not None:
+            self.estimates[cmd.step] = cmd.estimate
         if not cmd.feasible:
             self.infeasible_commands += 1
 
@@ -69,6 +74,14 @@ class RunMetrics:
             rot.append(float(np.linalg.norm(e)))
         return np.asarray(pos), np.asarray(rot)
 
+    def estimate_errors(self) -> tuple[np.ndarray, np.ndarray]:
+        """Position and orientation errors (m, rad) of the estimates sent with the commands, against the states
+        of their steps (every step with both)."""
+        steps = [k for k in sorted(self.estimates) if k in self.states]
+        if not steps:
+            return np.zeros(0), np.zeros(0)
+        return estimate_errors([self.estimates[k][:7] for k in steps], [self.states[k].pose for k in steps])
+
     def summary(self) -> dict[str, float | int | str | list[float] | None]:
         pos, rot = self.errors()
         applied = [self.states[k].tensions for k in sorted(self.states) if k > 0]
@@ -79,6 +92,12 @@ class RunMetrics:
             return float(np.sqrt(np.mean(x * x))) if x.size else None
 
         change = np.abs(np.diff(t, axis=0)).max() if t.shape[0] > 1 else None
+        est_pos, est_rot = self.estimate_errors()
+        # a controller fed from the sensors: its estimate's errors (only then: other summaries keep their keys)
+        estimate = {} if not est_pos.size else {
+            "rms_estimate_position_error": rms(est_pos), "max_estimate_position_error": float(est_pos.max()),
+            "rms_estimate_orientation_error": rms(est_rot), "max_estimate_orientation_error": float(est_rot.max()),
+        }
         return {
             "rms_position_error": rms(pos),
             "max_position_error": float(pos.max()) if pos.size else None,
@@ -93,4 +112,5 @@ class RunMetrics:
             "clamped_commands": last.clamped if last is not None else 0,
             "infeasible_commands": self.infeasible_commands,
             "state_digest": self.digest(),
+            **estimate,
         }

@@ -23,7 +23,14 @@ from cdpr.columns import Column
 from cdpr.errors import InputError
 from cdpr.mechanics.robot import Robot
 from cdpr.protocol import Command, Setpoint, State
-from cdpr.protocol.streams import COMMAND_AGE, STATE_COLUMNS, WATCHDOG
+from cdpr.protocol.streams import (
+    COMMAND_AGE,
+    ESTIMATE_POSITION,
+    ESTIMATE_QUATERNION,
+    ESTIMATE_TWIST,
+    STATE_COLUMNS,
+    WATCHDOG,
+)
 from cdpr.sensors import SENSOR_COLUMNS
 from cdpr.tools.metrics import RunMetrics
 
@@ -221,8 +228,17 @@ def metrics_from(data: RecordingData) -> RunMetrics:
                 Setpoint(k, k * dt, (*desired.values[j].tolist(), *dq[j].tolist()), zeros, zeros)
             )
     feasible = data.get(recording.COMMAND_FEASIBLE)
+    estimated = data.get(ESTIMATE_POSITION)  # a controller fed from the sensors: its estimate with each command
+    estimates: dict[int, tuple[float, ...]] = {}
+    if len(estimated.step):
+        try:
+            parts = [estimated.values, data.get(ESTIMATE_QUATERNION).at(estimated.step),
+                     data.get(ESTIMATE_TWIST).at(estimated.step)]
+        except KeyError as exc:
+            raise InputError(f"{data.path}: incomplete recording: no estimate data for step {exc.args[0]}") from None
+        estimates = {k: tuple(row) for k, row in zip(estimated.step.tolist(), np.hstack(parts).tolist(), strict=True)}
     for k, f in zip(feasible.step.tolist(), feasible.values[:, 0].tolist(), strict=True):
-        metrics.add_command(Command(k, k * dt, (), bool(f >= 0.5)))
+        metrics.add_command(Command(k, k * dt, (), bool(f >= 0.5), estimate=estimates.get(k)))
     return metrics
 
 
