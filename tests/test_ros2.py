@@ -38,6 +38,7 @@ from test_compose import Processes
 
 HERE = Path(__file__).resolve().parent
 CONTROLLER = Path(ros2_controller.__file__)  # run as a script (it imports nothing of cdpr)
+SENSORS_CONTROLLER = Path(ros2_controller.__file__).with_name("ros2_sensors_controller.py")  # with the estimator
 STORE = get_typestore(Stores.ROS2_JAZZY)
 WAIT = 30.0  # seconds any single expected event may take (a bound, never a measurement)
 
@@ -820,3 +821,28 @@ def test_a_recording_converts_to_a_ros2_bag_with_every_step(tmp_path: Path) -> N
     assert set(got) == {"/clock", "/tf", *(f"/cdpr/{t}" for t in ("joint_states", "platform/pose", "platform/twist",
                         "setpoint/pose", "joint_commands", "imu", "sensors/joint_states", "sensors/laser_tracker",
                         "session_info"))}
+
+
+@pytest.mark.slow
+def test_a_ros2_controller_fed_from_the_sensors_runs_caroca_15kg_sensors_to_the_end(ros2_session: Session) -> None:
+    """docs/ros2.md's controller fed from the sensors: it subscribes to sensors/joint_states (the encoders) and imu,
+    never to the truth, estimates with cdpr's filter and answers with stamped joint_commands; subscribing to the
+    encoders puts it in the controller's role. The session ends within #46's bound; its estimate is not recorded
+    (a ROS 2 command carries none)."""
+    ros2_session.start("caroca_15kg_sensors")
+    argv = [sys.executable, str(SENSORS_CONTROLLER), "--router-port", str(ros2_session.port), "--namespace",
+            ros2_session.ns]
+    ctl = ros2_session.procs.start("controller", argv, ros2_session.tmp, ros2_session.tmp / "controller.log",
+                                   env=ros2_session.env)
+    s = ros2_session.summary()
+    assert s["exit_ok"], s
+    assert s["steps"] == s["total_steps"] == 11000
+    assert s["rms_position_error"] <= 1e-3  # #46's bar (the encoders' and the IMU's noise through the filter)
+    assert set(s["faults"].get("ros2", {})) <= {"unmatched_ros2_commands"}, s["faults"]
+    ctl.send_signal(signal.SIGTERM)
+    assert ctl.wait(timeout=WAIT) == 0, ros2_session.procs.log("controller")[-2000:]
+    log = ros2_session.procs.log("controller")
+    assert "fed from the sensors" in log, log[-2000:]
+    answered = re.search(r"controller: answered (\d+) steps", log)
+    assert answered, log[-2000:]
+    assert int(answered.group(1)) >= 11000

@@ -3,7 +3,8 @@ they are — no bridge binary, no ROS installation on the session's side. docs/r
 
 It publishes each step's state and setpoint (and the sensors) on ROS 2 topics (:mod:`cdpr_ros2.core`),
 holds the liveliness tokens that make it a node of the ROS 2 graph, and watches that graph: while a ROS 2
-process publishes on a command topic and subscribes to ``joint_states``, this node holds the session's
+process publishes on a command topic and subscribes to ``joint_states`` (or, a controller fed from the
+sensors, to the encoders' ``sensors/joint_states``), this node holds the session's
 ``alive/controller`` token and turns that process's commands into ``controller/command`` — the session
 waits for it, pauses when it leaves and resumes when it comes back, exactly as for a cdpr controller.
 ``--observe``: the topics only, never the controller's role (rviz2, PlotJuggler, ``ros2 topic echo`` on
@@ -116,6 +117,12 @@ class Ros2Node(Node):
     def topic(self, name: str) -> str:
         return qualify(self.namespace, name)
 
+    @property
+    def fed(self) -> set[str]:
+        """The topics a controller subscribes to for what it answers: the state's ``joint_states``, or the encoders'
+        ``sensors/joint_states`` (a controller fed from the sensors: it answers with their stamp)."""
+        return {self.topic(PUBLISHED[name].name) for name in ("joint_states", "sensor_joint_states")}
+
     def declare(self, session: zenoh.Session, inbox: Inbox) -> list[Any]:
         self.session = session
         self.zid = str(session.info.zid())
@@ -149,7 +156,7 @@ class Ros2Node(Node):
         log(self.name, f"ROS 2 domain {self.domain}, node {self.namespace.rstrip('/')}/{self.node_name}"
             + (" (observer)" if self.observe else ": waiting for a ROS 2 controller (publishing "
                f"{self.topic('joint_commands')} or {self.topic('tension_commands')}, subscribed to "
-               f"{self.topic('joint_states')})"))
+               f"{' or '.join(sorted(self.fed))})"))
         return keep
 
     # -- the session's messages -> ROS 2 ------------------------------------------------------------
@@ -215,7 +222,7 @@ class Ros2Node(Node):
         if not self.controllers:
             self.count("ros2_commands_without_controller")
             self.warn("no_controller", f"dropped a {self.topic(topic)} message: its publisher is not in the "
-                      f"controller's role (it must also subscribe to {self.topic('joint_states')})")
+                      f"controller's role (it must also subscribe to {' or '.join(sorted(self.fed))})")
             return
         try:
             cmd = self.bridge.command(topic, payload)
@@ -239,10 +246,9 @@ class Ros2Node(Node):
         else:
             ends.discard(entry)
         commands = {self.topic(t.name) for t in COMMANDS.values()}
-        states = self.topic(PUBLISHED["joint_states"].name)
         controllers = tuple(sorted(
             zid for zid, e in self.graph.items()
-            if any(k == "MP" and t in commands for k, t in e) and ("MS", states) in e))
+            if any(k == "MP" and t in commands for k, t in e) and any(k == "MS" and t in self.fed for k, t in e)))
         if controllers == self.controllers:
             return
         was, self.controllers = self.controllers, controllers

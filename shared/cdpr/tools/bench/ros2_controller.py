@@ -107,21 +107,8 @@ def vec(v) -> np.ndarray:
     return np.array([v.x, v.y, v.z])
 
 
-def main() -> None:
-    ap = argparse.ArgumentParser()
-    ap.add_argument("--namespace", default="/cdpr")
-    ap.add_argument("--router-port", type=int, default=7447)
-    ap.add_argument("--unstamped", action="store_true", help="tension_commands (Float64MultiArray)")
-    ap.add_argument("--node-name", default="pd_controller")
-    ap.add_argument("--slow-start", type=float, default=0.0, metavar="SECONDS",
-                    help="wait this long before the first answer (a slow start: the session repeats state 0 meanwhile)")
-    args = ap.parse_args()
-    ns, port, node = args.namespace.rstrip("/"), args.router_port, args.node_name
-    common = {"node_name": node, "router_port": port}
-    stop = threading.Event()
-    signal.signal(signal.SIGTERM, lambda *_: stop.set())
-    signal.signal(signal.SIGINT, lambda *_: stop.set())
-
+def session_info(ns: str, common: dict, stop: threading.Event) -> dict | None:
+    """The latched ``session_info`` (JSON), once it comes; None if stopped first."""
     got: dict[str, dict] = {}
 
     def on_info(msg) -> None:
@@ -138,10 +125,29 @@ def main() -> None:
             if reply.ok is not None:
                 sub._process_sample(reply.ok)
     sub.close()
-    if stop.is_set():
+    return None if stop.is_set() else got["info"]
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser()
+    ap.add_argument("--namespace", default="/cdpr")
+    ap.add_argument("--router-port", type=int, default=7447)
+    ap.add_argument("--unstamped", action="store_true", help="tension_commands (Float64MultiArray)")
+    ap.add_argument("--node-name", default="pd_controller")
+    ap.add_argument("--slow-start", type=float, default=0.0, metavar="SECONDS",
+                    help="wait this long before the first answer (a slow start: the session repeats state 0 meanwhile)")
+    args = ap.parse_args()
+    ns, port, node = args.namespace.rstrip("/"), args.router_port, args.node_name
+    common = {"node_name": node, "router_port": port}
+    stop = threading.Event()
+    signal.signal(signal.SIGTERM, lambda *_: stop.set())
+    signal.signal(signal.SIGINT, lambda *_: stop.set())
+
+    info = session_info(ns, common, stop)
+    if info is None:
         return
-    law = Law(got["info"])
-    print(f"controller: robot {got['info']['robot']['name']} with {len(law.names)} cables", flush=True)
+    law = Law(info)
+    print(f"controller: robot {info['robot']['name']} with {len(law.names)} cables", flush=True)
 
     Header = get_message_class("std_msgs/msg/Header")
     Time = get_message_class("builtin_interfaces/msg/Time")
