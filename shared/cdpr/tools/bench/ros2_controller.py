@@ -158,54 +158,86 @@ def main() -> None:
     else:
         pub = ROS2Publisher(f"{ns}/joint_commands", "sensor_msgs/msg/JointState", **common)
 
-    parts: dict[tuple[int, int], dict] = {}
-    lock = threading.Lock()
     answered = [0]
     slow_start = [args.slow_start] if args.slow_start > 0 else []
-    needed = ("joint_states", "pose", "twist", "sp_pose", "sp_twist", "sp_accel")
 
-    def receive(name: str):
+    def on_step(stamp: tuple[int, int], step: dict) -> None:
+        pose, twist = step["pose"].pose, step["twist"].twist
+        t = law.tensions(pose_of(pose), np.concatenate([vec(twist.linear), vec(twist.angular)]), *setpoint_of(step))
+        if args.unstamped:
+            pub.publish(layout=Layout(dim=[Dim(label="cables", size=len(t), stride=len(t))], data_offset=0), data=t)
+        else:
+            pub.publish(header=Header(stamp=Time(sec=stamp[0], nanosec=stamp[1]), frame_id=""),
+                        name=list(law.names), position=np.zeros(0), velocity=np.zeros(0), effort=t)
+        answered[0] += 1
+
+    def first() -> None:
+        if slow_start:  # once, holding the lock: every other callback waits too
+            time.sleep(slow_start.pop())
+
+    join = StampJoin(("joint_states", "pose", "twist", *SETPOINT_TOPICS), on_step, first)
+    subs = [
+        ROS2Subscriber(f"{ns}/platform/pose", "geometry_msgs/msg/PoseStamped", join.receive("pose"), **common),
+        ROS2Subscriber(f"{ns}/platform/twist", "geometry_msgs/msg/TwistStamped", join.receive("twist"), **common),
+        *setpoint_subscribers(ns, join, common),
+        # last: with it the session sees this process in the controller's role (docs/ros2.md)
+        ROS2Subscriber(f"{ns}/joint_states", "sensor_msgs/msg/JointState", join.receive("joint_states"), **common),
+    ]
+    spin(stop, subs, pub, answered)
+
+
+# setpoint k's topics, stamped as state k: the name a StampJoin knows each by, the topic, its type
+SETPOINT_TOPICS = {"sp_pose": ("setpoint/pose", "geometry_msgs/msg/PoseStamped"),
+                   "sp_twist": ("setpoint/twist", "geometry_msgs/msg/TwistStamped"),
+                   "sp_accel": ("setpoint/accel", "geometry_msgs/msg/AccelStamped")}
+
+
+def pose_of(pose) -> np.ndarray:
+    """A geometry_msgs/Pose as [x, y, z, qx, qy, qz, qw]."""
+    q = pose.orientation
+    return np.concatenate([vec(pose.position), [q.x, q.y, q.z, q.w]])
+
+
+def setpoint_of(step: dict) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The desired pose, twist and acceleration among a step's joined messages."""
+    twist, accel = step["sp_twist"].twist, step["sp_accel"].accel
+    return (pose_of(step["sp_pose"].pose), np.concatenate([vec(twist.linear), vec(twist.angular)]),
+            np.concatenate([vec(accel.linear), vec(accel.angular)]))
+
+
+def setpoint_subscribers(ns: str, join: StampJoin, common: dict) -> list:
+    return [ROS2Subscriber(f"{ns}/{topic}", ros_type, join.receive(name), **common)
+            for name, (topic, ros_type) in SETPOINT_TOPICS.items()]
+
+
+class StampJoin:
+    """Each step's messages joined by their stamp: ``on_step(stamp, messages)`` once every one of ``needed`` is in
+    (the older incomplete steps dropped then); ``first`` runs, holding the lock, before each step is handed on."""
+
+    def __init__(self, needed, on_step, first=None) -> None:
+        self.needed, self.on_step, self.first = tuple(needed), on_step, first
+        self.parts: dict[tuple[int, int], dict] = {}
+        self.lock = threading.Lock()
+
+    def receive(self, name: str):
         def callback(msg) -> None:
             stamp = (msg.header.stamp.sec, msg.header.stamp.nanosec)
-            with lock:
-                step = parts.setdefault(stamp, {})
+            with self.lock:
+                step = self.parts.setdefault(stamp, {})
                 step[name] = msg
-                if len(step) < len(needed):
+                if len(step) < len(self.needed):
                     return
-                del parts[stamp]
-                for old in [s for s in parts if s < stamp]:
-                    del parts[old]
-                if slow_start:  # once, holding the lock: every other callback waits too
-                    time.sleep(slow_start.pop())
-            pose = step["pose"].pose
-            sp = step["sp_pose"].pose
-            t = law.tensions(
-                np.concatenate([vec(pose.position), [pose.orientation.x, pose.orientation.y, pose.orientation.z,
-                                                     pose.orientation.w]]),
-                np.concatenate([vec(step["twist"].twist.linear), vec(step["twist"].twist.angular)]),
-                np.concatenate([vec(sp.position), [sp.orientation.x, sp.orientation.y, sp.orientation.z,
-                                                   sp.orientation.w]]),
-                np.concatenate([vec(step["sp_twist"].twist.linear), vec(step["sp_twist"].twist.angular)]),
-                np.concatenate([vec(step["sp_accel"].accel.linear), vec(step["sp_accel"].accel.angular)]))
-            if args.unstamped:
-                pub.publish(layout=Layout(dim=[Dim(label="cables", size=len(t), stride=len(t))], data_offset=0),
-                            data=t)
-            else:
-                pub.publish(header=Header(stamp=Time(sec=stamp[0], nanosec=stamp[1]), frame_id=""),
-                            name=list(law.names), position=np.zeros(0), velocity=np.zeros(0), effort=t)
-            answered[0] += 1
+                del self.parts[stamp]
+                for old in [s for s in self.parts if s < stamp]:
+                    del self.parts[old]
+                if self.first is not None:
+                    self.first()
+            self.on_step(stamp, step)
         return callback
 
-    subs = [
-        ROS2Subscriber(f"{ns}/platform/pose", "geometry_msgs/msg/PoseStamped",
-                       receive("pose"), **common),
-        ROS2Subscriber(f"{ns}/platform/twist", "geometry_msgs/msg/TwistStamped", receive("twist"), **common),
-        ROS2Subscriber(f"{ns}/setpoint/pose", "geometry_msgs/msg/PoseStamped", receive("sp_pose"), **common),
-        ROS2Subscriber(f"{ns}/setpoint/twist", "geometry_msgs/msg/TwistStamped", receive("sp_twist"), **common),
-        ROS2Subscriber(f"{ns}/setpoint/accel", "geometry_msgs/msg/AccelStamped", receive("sp_accel"), **common),
-        # last: with it the session sees this process in the controller's role (docs/ros2.md)
-        ROS2Subscriber(f"{ns}/joint_states", "sensor_msgs/msg/JointState", receive("joint_states"), **common),
-    ]
+
+def spin(stop: threading.Event, subs: list, pub, answered: list[int]) -> None:
+    """Run until stopped (SIGTERM/SIGINT), then close everything and say how many steps were answered."""
     print("controller: ready", flush=True)
     started = time.monotonic()
     while not stop.wait(0.5):
