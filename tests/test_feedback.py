@@ -57,6 +57,37 @@ def test_the_estimate_is_closer_to_the_truth_than_forward_kinematics_alone() -> 
     assert rms(twist) < 2e-3  # m/s, while the platform moves at up to ~0.2 m/s
 
 
+def test_the_filter_takes_the_stretch_out_of_the_encoders_lengths_with_the_load_cells() -> None:
+    """Stretching cables (caroca_15kg_sag_sensors: EA = 1 MN) pay out unstretched lengths: the filter, told EA by the
+    scenario or by session/info, solves for the lengths the load cells' tensions stretch them to — its estimate is
+    much closer to the truth than one that takes the encoders' lengths as they are (what is left: the sag)."""
+    from cdpr.protocol.session import SessionInfo, encode_session_info
+
+    sc = load_scenario("caroca_15kg_sag_sensors")
+    feedback = SensorFeedback.from_scenario(sc)
+    assert feedback.EA == 1.0e6
+    assert SensorFeedback.from_info(SessionInfo.from_payload(encode_session_info(sc))).EA == 1.0e6
+    assert SensorFeedback.from_scenario(load_scenario("caroca_15kg_sensors")).EA is None  # ideal cables
+    sim, sensors, core = make_sim(sc), SimNode.make_sensors(sc), ControllerCore.from_scenario(sc)
+    setpoint_at = node_class("trajectory").make_core(sc)
+    noise, _ = noise_of(sc.spec.sim.sensors.model_dump())
+    rigid = PoseEstimator(sc.robot, sc.dt, noise, sc.initial_position, sc.initial_rotation)
+    corrected, plain = [], []
+    for k in range(600):
+        truth, reading = sim.message(0), sensors.read(sim)
+        assert reading.load_cells is not None
+        state = feedback.state(reading)
+        assert state is not None
+        e = rigid.update(k, reading.encoders, reading.accel, reading.gyro)
+        if k >= 100:
+            corrected.append(np.linalg.norm(np.asarray(state.pose[:3]) - truth.pose[:3]))
+            plain.append(np.linalg.norm(e.position - truth.pose[:3]))
+        sim.step(core.step(truth, setpoint_at(k)).tensions)
+    rms = lambda x: float(np.sqrt(np.mean(np.square(x))))  # noqa: E731
+    assert rms(plain) > 1e-4  # the stretch: ~0.1 mm and more
+    assert rms(corrected) < 0.25 * rms(plain)  # measured: 0.27 mm and 17 µm
+
+
 def test_feedback_from_sensors_needs_encoders_and_a_law_of_states(tmp_path: Path) -> None:
     spec = yaml.safe_load((ROOT / "shared/cdpr/scenarios/caroca_15kg_sensors.yaml").read_text(encoding="utf-8"))
     del spec["sim"]["sensors"]["encoders"]

@@ -82,12 +82,14 @@ class PoseEstimator:
         self.step = -1
 
     def update(self, step: int, lengths: ArrayLike, accel: ArrayLike | None = None,
-               gyro: ArrayLike | None = None) -> Estimate:
+               gyro: ArrayLike | None = None, stretch: tuple[ArrayLike, ArrayLike] | None = None) -> Estimate:
         """The estimate at ``step`` from its readings: the encoders' ``lengths`` (m), the IMU's specific force
-        ``accel`` (m/s², body frame) and rate ``gyro`` (rad/s, body frame), each None when not read."""
+        ``accel`` (m/s², body frame) and rate ``gyro`` (rad/s, body frame), each None when not read; ``stretch``
+        ``(tensions, EA)``: the lengths are unstretched ones, stretched by those tensions (N) to solve for."""
         dt = self.dt * (step - self.step if self.step >= 0 else 0)
         self._predict(dt, None if accel is None else np.asarray(accel, dtype=float))
-        fk = self.fk.solve(lengths, self.p, self.R)
+        fk = (self.fk.solve(lengths, self.p, self.R) if stretch is None
+              else self.fk.solve(lengths, self.p, self.R, tensions=stretch[0], EA=stretch[1]))
         if self.step < 0 and not self.known:  # the first reading: the pose is its forward kinematics
             self.p, self.R = fk.position.copy(), fk.rotation.copy()
         cov = self._pose_covariance(fk.position, fk.rotation)

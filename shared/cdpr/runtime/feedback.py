@@ -5,6 +5,11 @@ Each step's readings go through :class:`cdpr.mechanics.estimation.PoseEstimator`
 forward kinematics, the IMU's specific force and rate), in step order; the law then gets a :class:`State` whose
 pose and twist are the estimate's, whose cable lengths are the encoders' and whose tensions are the load cells'
 (zeros without). A reading asked for again (the clock's resend) gets the state it got the first time.
+
+Stretching cables (``sim.cable_model`` elastic or sag, whose ``EA`` the session says) with load cells: the encoders
+pay out unstretched lengths, so forward kinematics solves for the lengths the measured tensions stretch them to,
+``l0 (1 + f / EA)`` (:meth:`cdpr.mechanics.forward.ForwardKinematics.solve`). A sagging cable's arc is still taken
+for its chord.
 """
 
 from __future__ import annotations
@@ -42,8 +47,10 @@ class SensorFeedback:
     SDK's for a remote controller (``cdpr.runtime.client``, ``--feedback sensors``)."""
 
     def __init__(self, robot: Robot, dt: float, sensors: Mapping[str, Any], position: ArrayLike | None = None,
-                 rotation: ArrayLike | None = None) -> None:
+                 rotation: ArrayLike | None = None, EA: float | list[float] | None = None) -> None:
         self.noise, self.imu = noise_of(sensors)
+        # the stretch correction: the cables' EA, when they stretch and the load cells measure their tensions
+        self.EA = EA if sensors.get("load_cells") else None
         self.m = robot.m
         self.estimator = PoseEstimator(robot, dt, self.noise, position, rotation)
         self.states: OrderedDict[int, State] = OrderedDict()
@@ -51,8 +58,9 @@ class SensorFeedback:
     @classmethod
     def from_scenario(cls, scenario: Any) -> SensorFeedback:
         """For a :class:`cdpr.config.scenario.Scenario` (its start pose known)."""
+        params = scenario.spec.sim.cable_params
         return cls(scenario.robot, scenario.dt, scenario.spec.sim.sensors.model_dump(), scenario.initial_position,
-                   scenario.initial_rotation)
+                   scenario.initial_rotation, getattr(params, "EA", None))
 
     @classmethod
     def from_info(cls, info: SessionInfo) -> SensorFeedback:
@@ -66,7 +74,9 @@ class SensorFeedback:
             if any(entry.get(key) for key in ("rate", "latency", "dropout")):
                 raise InputError(f"session {info.scenario}: feedback from sensors reads sim.sensors.{name} every "
                                  "step as measured then: its rate, latency and dropout must be 0")
-        return cls(info.robot, info.dt, sensors)
+        sim = info.raw.get("sim") or {}
+        params = sim.get(sim.get("cable_model")) if isinstance(sim.get("cable_model"), str) else None
+        return cls(info.robot, info.dt, sensors, EA=params.get("EA") if isinstance(params, dict) else None)
 
     def state(self, reading: Sensors) -> State | None:
         """The state of ``reading``'s step for the law, or None when the reading has no encoder lengths."""
@@ -77,8 +87,10 @@ class SensorFeedback:
         if lengths is None:
             return None
         accel, gyro = (reading.get("accel"), reading.get("gyro")) if self.imu else (None, None)
-        e = self.estimator.update(reading.step, lengths, accel, gyro)
-        tensions = reading.get("load_cells") or (0.0,) * self.m
+        measured = reading.get("load_cells")
+        stretch = None if self.EA is None or measured is None else (measured, self.EA)
+        e = self.estimator.update(reading.step, lengths, accel, gyro, stretch)
+        tensions = measured or (0.0,) * self.m
         state = State(reading.step, reading.t, (*e.position.tolist(), *matrix_to_quat(e.rotation).tolist()),
                       tuple(e.twist.tolist()), tuple(lengths), tuple(tensions))
         self.states[reading.step] = state
