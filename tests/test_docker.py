@@ -656,11 +656,13 @@ def test_a_study_runs_on_a_ray_cluster_of_containers_and_survives_a_lost_worker(
     head = p.container("ray-head")
     alive = ["python", "-c",
              "import ray; ray.init(address='auto', logging_level='ERROR'); "
-             "print(sum(1 for n in ray.nodes() if n['Alive']))"]
+             "print('alive nodes:', sum(1 for n in ray.nodes() if n['Alive']))"]
 
     def nodes() -> int:
+        # the count's own line: Ray may print more on stdout (a native stack's addresses, 2026-11-28)
         proc = _run(["docker", "exec", head, *alive], timeout=60)
-        return int(proc.stdout.split()[-1]) if proc.returncode == 0 and proc.stdout.split() else 0
+        found = re.findall(r"^alive nodes: (\d+)$", proc.stdout, re.MULTILINE) if proc.returncode == 0 else []
+        return int(found[-1]) if found else 0
 
     _wait_for("the head and two workers", lambda: nodes() == 3, 180, p.report)
 

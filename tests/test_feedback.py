@@ -102,6 +102,12 @@ def test_feedback_from_sensors_needs_encoders_and_a_law_of_states(tmp_path: Path
     path.write_text(yaml.safe_dump(spec), encoding="utf-8")
     with pytest.raises(InputError, match=r"controller\.feedback: sensors .*law ibvs"):
         load_scenario(path)
+    # stretching cables: the filter takes their stretch out with the load cells, read every step as the encoders are
+    spec = yaml.safe_load((ROOT / "shared/cdpr/scenarios/caroca_15kg_sag_sensors.yaml").read_text(encoding="utf-8"))
+    spec["sim"]["sensors"]["load_cells"]["dropout"] = 0.1
+    path.write_text(yaml.safe_dump(spec), encoding="utf-8")
+    with pytest.raises(InputError, match=r"sim\.sensors\.load_cells every step .* dropout must stay 0"):
+        load_scenario(path)
 
 
 def test_a_resent_reading_gets_the_state_it_got_before() -> None:
@@ -175,6 +181,15 @@ def _check_the_recorded_estimate(rrd: Path, summary: dict) -> None:
     assert 0.0 < summary["rms_estimate_position_error"] <= 1e-4  # the encoders' noise, filtered (~7 µm)
     assert summary["rms_estimate_position_error"] == pytest.approx(float(np.sqrt(np.mean(dp * dp))), rel=1e-12)
     assert 0.0 < summary["rms_estimate_orientation_error"] <= 1e-3
+    converted = rrd.with_suffix(".mcap")  # cdpr convert writes the estimate's channel as the live recorder does
+    subprocess.run([*CDPR, "convert", str(rrd), "--to", "mcap", "-o", str(converted)], check=True, timeout=300,
+                   capture_output=True)
+    from mcap.reader import make_reader
+
+    with converted.open("rb") as f:
+        rows = [json.loads(m.data) for _, _, m in make_reader(f).iter_messages(topics=["/platform/estimate"])]
+    assert [r["step"] for r in rows] == list(range(11000))
+    assert rows[-1]["position_error"] == pytest.approx(float(dp[-1]), rel=1e-12)
     report = summarize(data)
     for key in ("rms_estimate_position_error", "max_estimate_position_error", "rms_estimate_orientation_error",
                 "max_estimate_orientation_error"):

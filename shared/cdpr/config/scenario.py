@@ -352,7 +352,10 @@ class ScenarioSpec(Strict):
             if self.sim.sensors is None or getattr(self.sim.sensors, "encoders", None) is None:
                 raise ValueError("controller.feedback: sensors needs sim.sensors.encoders (the estimate's pose is "
                                  "their forward kinematics)")
-            for name in ("encoders", "imu"):  # the filter takes a reading as measured at its step, every step
+            # the filter takes a reading as measured at its step, every step (the load cells: with stretching cables,
+            # whose stretch it takes out with them)
+            stretching = getattr(self.sim.cable_params, "EA", None) is not None
+            for name in ("encoders", "imu", *(["load_cells"] if stretching else [])):
                 entry = getattr(self.sim.sensors, name, None)
                 if entry is not None and (entry.rate or entry.latency or entry.dropout):
                     raise ValueError(f"controller.feedback: sensors reads sim.sensors.{name} every step as measured "

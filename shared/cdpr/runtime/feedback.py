@@ -69,14 +69,15 @@ class SensorFeedback:
         if not isinstance(sensors, dict) or not sensors.get("encoders"):
             raise InputError(f"session {info.scenario}: feedback from sensors needs its winch encoders (sim.sensors."
                              "encoders in session/info)")
-        for name in ("encoders", "imu"):
+        sim = info.raw.get("sim") or {}
+        params = sim.get(sim.get("cable_model")) if isinstance(sim.get("cable_model"), str) else None
+        EA = params.get("EA") if isinstance(params, dict) else None
+        for name in ("encoders", "imu", *(["load_cells"] if EA is not None else [])):
             entry = sensors.get(name) or {}
             if any(entry.get(key) for key in ("rate", "latency", "dropout")):
                 raise InputError(f"session {info.scenario}: feedback from sensors reads sim.sensors.{name} every "
                                  "step as measured then: its rate, latency and dropout must be 0")
-        sim = info.raw.get("sim") or {}
-        params = sim.get(sim.get("cable_model")) if isinstance(sim.get("cable_model"), str) else None
-        return cls(info.robot, info.dt, sensors, EA=params.get("EA") if isinstance(params, dict) else None)
+        return cls(info.robot, info.dt, sensors, EA=EA)
 
     def state(self, reading: Sensors) -> State | None:
         """The state of ``reading``'s step for the law, or None when the reading has no encoder lengths."""

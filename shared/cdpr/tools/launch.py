@@ -254,15 +254,19 @@ class Tape:
         for topic, payload in reversed(self.items):
             if topic == "telemetry":
                 with contextlib.suppress(ProtocolError):
-                    return max((s.step for s in Telemetry.decode(payload, cables).states), default=-1)
+                    states = Telemetry.decode(payload, cables).states
+                    if states:
+                        return max(s.step for s in states)
         return -1
 
-    def await_step(self, step: int, cables: int, timeout: float) -> bool:
+    def await_step(self, step: int, cables: int, timeout: float, stop: StopFlag | None = None) -> bool:
         """Wait until the telemetry has reached ``step`` (the clock's last), at most ``timeout`` s. A child's
         exit does not mean that this process's router has handled what the child sent before it: the bytes
         may still be in the socket, read later by Zenoh's thread — after the subscriber has gone."""
         deadline = time.monotonic() + timeout
         while (reached := self.reached(cables)) < step:
+            if stop:
+                return False
             if time.monotonic() >= deadline:
                 log("cdpr", f"the sim's telemetry came up to step {reached} of {step} within {timeout:g} s of the "
                     "end: the summary's figures cover those steps only")
@@ -453,7 +457,7 @@ def run_session(scenario: Scenario, opts: RunOptions | None = None) -> int:
             else:
                 codes = _watch_children(children, monitor, stop, opts, listen_eps)
             if monitor.finished and monitor.final is not None and monitor.final.step >= scenario.total_steps:
-                tape.await_step(monitor.final.step, scenario.robot.m, TELEMETRY_GRACE)  # the whole run's
+                tape.await_step(monitor.final.step, scenario.robot.m, TELEMETRY_GRACE, stop)  # the whole run's
         finally:
             for s in subs:
                 s.undeclare()

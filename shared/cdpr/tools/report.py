@@ -11,6 +11,7 @@ for bit.
 from __future__ import annotations
 
 import json
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -180,12 +181,14 @@ def _fill(data: RecordingData, c: Column, values: NDArray[np.float64], rows: NDA
             values[rows, s.first:end] = data.get(s.path).at(at)
 
 
-def sensor_columns(data: RecordingData, m: int) -> tuple[NDArray[np.int64], dict[str, NDArray[np.float64]]]:
-    """The sensors' channels (SENSOR_COLUMNS) read back from their recorded series: the steps with a reading of
-    any kind, and each recorded channel's (n, width) values there, NaN where it has none. KeyError(step) where
-    a channel's series disagree on its steps."""
+def sensor_columns(data: RecordingData, m: int, declared: Sequence[Column] = SENSOR_COLUMNS
+                   ) -> tuple[NDArray[np.int64], dict[str, NDArray[np.float64]]]:
+    """The sensors' channels (SENSOR_COLUMNS; or another stream's ``declared`` columns recorded at some steps only,
+    e.g. the estimate's) read back from their recorded series: the steps with a reading of any kind, and each
+    recorded channel's (n, width) values there, NaN where it has none. KeyError(step) where a channel's series
+    disagree on its steps."""
     found: dict[Column, NDArray[np.int64]] = {}
-    for c in SENSOR_COLUMNS:
+    for c in declared:
         first = c.series[0]
         steps = data.get(first.path.format(i=first.first) if first.split else first.path).step
         if len(steps):

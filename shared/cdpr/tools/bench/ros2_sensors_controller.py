@@ -60,11 +60,18 @@ def main() -> None:
 
     def on_step(stamp: tuple[int, int], step: dict) -> None:
         t = stamp[0] + 1e-9 * stamp[1]
-        imu = step["imu"]
-        reading = Sensors(round(t / dt), t, encoders=tuple(float(x) for x in step["encoders"].position),
-                          accel=tuple(vec(imu.linear_acceleration).tolist()),
-                          gyro=tuple(vec(imu.angular_velocity).tolist()))
-        with join.lock:  # the filter's own state: one step at a time
+        k = round(t / dt)
+        encoders, imu = step["encoders"], step.get("imu")
+        channels = {"encoders": tuple(float(x) for x in encoders.position)}
+        if len(encoders.effort):  # the load cells: the filter takes the cables' stretch out with them
+            channels["load_cells"] = tuple(float(x) for x in encoders.effort)
+        if imu is not None:
+            channels["accel"] = tuple(vec(imu.linear_acceleration).tolist())
+            channels["gyro"] = tuple(vec(imu.angular_velocity).tolist())
+        reading = Sensors(k, t, **channels)
+        with join.lock:  # the filter's own state: one step at a time, in step order
+            if k < feedback.estimator.step and k not in feedback.states:
+                return  # an older step handed on after a newer one (free-running): the newer one stands
             state = feedback.state(reading)  # the estimate (the same again for a step asked again)
         assert state is not None
         tensions = law.tensions(np.asarray(state.pose), np.asarray(state.twist), *setpoint_of(step))
@@ -72,9 +79,9 @@ def main() -> None:
                     name=list(law.names), position=np.zeros(0), velocity=np.zeros(0), effort=tensions)
         answered[0] += 1
 
-    join = StampJoin(("encoders", "imu", *SETPOINT_TOPICS), on_step)
+    join = StampJoin(("encoders", *(["imu"] if feedback.imu else []), *SETPOINT_TOPICS), on_step)
     subs = [
-        ROS2Subscriber(f"{ns}/imu", "sensor_msgs/msg/Imu", join.receive("imu"), **common),
+        *([ROS2Subscriber(f"{ns}/imu", "sensor_msgs/msg/Imu", join.receive("imu"), **common)] if feedback.imu else []),
         *setpoint_subscribers(ns, join, common),
         # last: with it the session sees this process in the controller's role (docs/ros2.md)
         ROS2Subscriber(f"{ns}/sensors/joint_states", "sensor_msgs/msg/JointState", join.receive("encoders"),

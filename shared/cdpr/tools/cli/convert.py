@@ -171,6 +171,7 @@ def _feed(
     sink: Any, data: Any, extras: _Extras, dt: float, m: int, scene_every: int, path_every: int
 ) -> dict[str, int]:
     from cdpr import recording
+    from cdpr.recording.mcap import ESTIMATE_STREAM
     from cdpr.tools.report import sensor_columns, state_columns
 
     get = data.get
@@ -227,6 +228,12 @@ def _feed(
         raise InputError(f"{data.path}: incomplete recording: no sensor data for step {exc.args[0]}") from None
     if len(r):
         sink.sensors(r, r * dt, readings)
+    try:  # a controller fed from the sensors: its estimates (and their errors) with its commands
+        e, estimates = sensor_columns(data, m, ESTIMATE_STREAM)
+    except KeyError as exc:
+        raise InputError(f"{data.path}: incomplete recording: no estimate data for step {exc.args[0]}") from None
+    if len(e):
+        sink.estimates(e, e * dt, estimates)
 
     statuses = _status_rows(extras, recording.CLOCK_STATE)
     sink.statuses(statuses)
