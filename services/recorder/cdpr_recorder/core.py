@@ -26,7 +26,7 @@ from numpy.typing import ArrayLike, NDArray
 
 from cdpr.mechanics.estimation import estimate_errors
 from cdpr.protocol import Command, Sensors, Setpoint, State, Status
-from cdpr.protocol.streams import ESTIMATE_WIDTH, STATE_COLUMNS
+from cdpr.protocol.streams import ESTIMATE_COLUMNS, ESTIMATE_ERROR_COLUMNS, ESTIMATE_WIDTH, STATE_COLUMNS
 from cdpr.sensors import SENSOR_COLUMNS
 
 F64 = NDArray[np.float64]
@@ -357,8 +357,11 @@ class RecorderCore:
             if paired:
                 position[paired], orientation[paired] = estimate_errors(
                     rows[paired, :7], [self.poses[commands[j].step] for j in paired])
-        return {"pose": rows[:, :7], "twist": rows[:, 7:], "position_error": position,
-                "orientation_error": orientation}
+        out, first = {}, 0
+        for c in ESTIMATE_COLUMNS:  # the command's estimate, split as its columns declare
+            out[c.name], first = rows[:, first:first + (c.width or 0)], first + (c.width or 0)
+        position_error, orientation_error = ESTIMATE_ERROR_COLUMNS
+        return {**out, position_error.name: position, orientation_error.name: orientation}
 
     def _path_rows(self, states: list[State], final_step: int | None) -> PathRows:
         steps: list[int] = []

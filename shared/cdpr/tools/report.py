@@ -26,9 +26,7 @@ from cdpr.mechanics.robot import Robot
 from cdpr.protocol import Command, Setpoint, State
 from cdpr.protocol.streams import (
     COMMAND_AGE,
-    ESTIMATE_POSITION,
-    ESTIMATE_QUATERNION,
-    ESTIMATE_TWIST,
+    ESTIMATE_COLUMNS,
     STATE_COLUMNS,
     WATCHDOG,
 )
@@ -231,15 +229,12 @@ def metrics_from(data: RecordingData) -> RunMetrics:
                 Setpoint(k, k * dt, (*desired.values[j].tolist(), *dq[j].tolist()), zeros, zeros)
             )
     feasible = data.get(recording.COMMAND_FEASIBLE)
-    estimated = data.get(ESTIMATE_POSITION)  # a controller fed from the sensors: its estimate with each command
-    estimates: dict[int, tuple[float, ...]] = {}
-    if len(estimated.step):
-        try:
-            parts = [estimated.values, data.get(ESTIMATE_QUATERNION).at(estimated.step),
-                     data.get(ESTIMATE_TWIST).at(estimated.step)]
-        except KeyError as exc:
-            raise InputError(f"{data.path}: incomplete recording: no estimate data for step {exc.args[0]}") from None
-        estimates = {k: tuple(row) for k, row in zip(estimated.step.tolist(), np.hstack(parts).tolist(), strict=True)}
+    try:  # a controller fed from the sensors: its estimate with each command (the declared columns, read back)
+        e, columns = sensor_columns(data, m, ESTIMATE_COLUMNS)
+    except KeyError as exc:
+        raise InputError(f"{data.path}: incomplete recording: no estimate data for step {exc.args[0]}") from None
+    estimated = np.hstack([columns[c.name] for c in ESTIMATE_COLUMNS]) if len(e) else np.zeros((0, 0))
+    estimates = {k: tuple(row) for k, row in zip(e.tolist(), estimated.tolist(), strict=True)}
     for k, f in zip(feasible.step.tolist(), feasible.values[:, 0].tolist(), strict=True):
         metrics.add_command(Command(k, k * dt, (), bool(f >= 0.5), estimate=estimates.get(k)))
     return metrics
