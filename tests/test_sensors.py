@@ -206,3 +206,22 @@ def test_the_protocol_document_lists_every_channel_of_the_table() -> None:
     listed = {name: (kind, numbers, unit.strip()) for name, kind, numbers, unit in rows}
     assert listed == {c.name: (COLUMN_KIND[c.name].name, "m" if c.width is None else str(c.width), c.unit)
                       for c in SENSOR_COLUMNS}
+
+
+def test_encoders_read_the_robots_zero_errors_and_the_feedback_takes_them_off() -> None:
+    from cdpr.protocol.session import robot_from_summary
+    from cdpr.runtime.feedback import SensorFeedback
+
+    offsets = np.linspace(-0.01, 0.01, 8)
+    robot = load_robot("caroca").with_mass(15.0).replace(tmin=1.0, tmax=6500.0, encoder_offsets=offsets)
+    assert robot_from_summary(robot.summary()).encoder_offsets == pytest.approx(offsets, abs=0.0)
+    assert "encoder_offsets" not in load_robot("caroca").summary()  # zeros: not said
+    sim = PlatformSim(robot, 1e-3, [0.2, -0.1, 1.2], rpy_to_matrix(0.1, 0.0, 0.2))
+    reading = SensorSuite(SensorsSpec(), robot, 1e-3).read(sim)
+    lengths = sim.state().cable_lengths
+    assert np.array(reading.encoders) - lengths == pytest.approx(offsets, abs=1e-12)
+    feedback = SensorFeedback(robot, 1e-3, {"encoders": {}}, [0.2, -0.1, 1.2], rpy_to_matrix(0.1, 0.0, 0.2))
+    state = feedback.state(reading)
+    assert state is not None
+    assert state.cable_lengths == pytest.approx(lengths, abs=1e-12)
+    assert state.pose[:3] == pytest.approx(sim.state().position, abs=1e-9)

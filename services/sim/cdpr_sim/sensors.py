@@ -89,6 +89,7 @@ class SensorSuite:
         self.m = robot.m
         self.dt = float(dt)
         self.com_offset = np.array(robot.com_offset, dtype=float)
+        self.encoder_offsets = np.array(robot.encoder_offsets, dtype=float)  # what the encoders read beyond
         self.sensors = tuple(_Sensor(kind, entry, period(entry, dt), latency_steps(entry, dt),
                                      tuple(_INDEX[c.name] for c in kind.channels)) for kind, entry in spec.kinds())
         self.previous: tuple[int, Array] | None = None  # (step, twist) of the last new step read (a sim's snapshot)
@@ -106,7 +107,8 @@ class SensorSuite:
         else:
             acceleration = np.zeros(3)
         return Truth(state.step, state.t, np.asarray(state.position, dtype=float), state.rotation, twist,
-                     acceleration, sim.encoder_lengths(), sim.load_cell_tensions(), self.com_offset)
+                     acceleration, sim.encoder_lengths() + self.encoder_offsets, sim.load_cell_tensions(),
+                     self.com_offset)
 
     def read(self, sim: SimModel) -> Sensors:
         state = sim.state()

@@ -115,6 +115,8 @@ class CableSpec(Strict):
     max_length: PositiveFloat | None = Field(None, description="this cable's longest length, m (default "
                                                                 "limits.max_length)")
     pulley: PulleySpec | None = Field(None, description="a swivelling exit pulley (docs/robots.md)")
+    encoder_offset: FiniteFloat = Field(0.0, description="what this cable's winch encoder reads beyond the cable's "
+                                        "length, m (its zero error after homing; `cdpr calibrate` identifies it)")
 
 
 class DampingSpec(Strict):
@@ -231,6 +233,7 @@ def robot_from_spec(spec: RobotSpec, where: str, check_home: bool = True) -> Rob
         cable_set=spec.cable_set,
         com_offset=frozen_array(com),
         pulleys=_pulleys(spec.cables),
+        encoder_offsets=frozen_array(np.array([c.encoder_offset for c in spec.cables], dtype=float)),
     )
     check_robot(robot, where)
     if check_home and (problem := home_problem(robot, where, spec.home.position, spec.home.rpy)) is not None:

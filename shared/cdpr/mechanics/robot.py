@@ -98,12 +98,17 @@ class Robot:
     # Swivelling exit pulleys (:mod:`cdpr.mechanics.pulley`): None, or per cable a radius (0: none) and an axis;
     # a cable with a pulley runs into it at its frame point a_i.
     pulleys: Pulleys | None = None
+    # What each winch encoder reads beyond its cable's length, m (zero errors after homing; cdpr calibrate): the
+    # sim's encoders add it, a controller fed from the sensors takes it off. One number or one per cable.
+    encoder_offsets: Array = dataclasses.field(default_factory=lambda: frozen_array(np.zeros(1)))
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "com_offset", frozen_array(np.broadcast_to(self.com_offset, (3,))))
         m = self.m
-        for name in ("tmin", "tmax", "max_length"):
+        for name in ("tmin", "tmax", "max_length", "encoder_offsets"):
             value = np.asarray(getattr(self, name), dtype=float)
+            if name == "encoder_offsets" and value.shape == (1,):
+                value = value[0]
             if value.shape not in ((), (m,)):
                 raise InputError(f"{name}: expected one number or {m} (one per cable), got shape {value.shape}")
             object.__setattr__(self, name, frozen_array(np.broadcast_to(value, (m,))))
@@ -155,7 +160,7 @@ class Robot:
         if "frame_points" in changes and np.shape(changes["frame_points"])[0] != self.m:
             if self.pulleys is not None and "pulleys" not in changes:
                 raise InputError("pulleys: the robot has pulleys: give them for the new cables")
-            for name in ("tmin", "tmax", "max_length"):
+            for name in ("tmin", "tmax", "max_length", "encoder_offsets"):
                 value = getattr(self, name)
                 if name not in changes:
                     if np.any(value != value[0]):
@@ -200,4 +205,5 @@ class Robot:
             "home": {"position": self.home_position.tolist(), "rotation": self.home_rotation.tolist()},
             "frame_points": self.frame_points.tolist(),
             "platform_points": self.platform_points.tolist(),
+            **({"encoder_offsets": self.encoder_offsets.tolist()} if self.encoder_offsets.any() else {}),
         }

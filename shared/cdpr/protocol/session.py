@@ -104,6 +104,7 @@ def robot_from_summary(summary: dict[str, Any]) -> Robot:
             plane=summary.get("plane", "xz"),
             cable_set=str(summary.get("cable_set", "default")),
             com_offset=_readonly(summary.get("com_offset", [0.0, 0.0, 0.0]), (3,)),
+            encoder_offsets=_readonly(summary.get("encoder_offsets", [0.0] * m), (m,)),
             pulleys=None if (pulleys := summary.get("pulleys")) is None else Pulleys(
                 _readonly(pulleys["radius"], (m,)), _readonly(pulleys["axis"], (m, 3))),
         )

@@ -18,6 +18,7 @@ from collections import OrderedDict
 from collections.abc import Mapping
 from typing import Any
 
+import numpy as np
 from numpy.typing import ArrayLike
 
 from cdpr.errors import InputError
@@ -52,6 +53,8 @@ class SensorFeedback:
         # the stretch correction: the cables' EA, when they stretch and the load cells measure their tensions
         self.EA = EA if sensors.get("load_cells") else None
         self.m = robot.m
+        # the encoders' zero errors (the robot file's encoder_offset, cdpr calibrate), taken off their readings
+        self.offsets = np.array(robot.encoder_offsets, dtype=float) if robot.encoder_offsets.any() else None
         self.estimator = PoseEstimator(robot, dt, self.noise, position, rotation)
         self.states: OrderedDict[int, State] = OrderedDict()
 
@@ -84,9 +87,10 @@ class SensorFeedback:
         known = self.states.get(reading.step)
         if known is not None:
             return known
-        lengths = reading.get("encoders")
-        if lengths is None:
+        counted = reading.get("encoders")
+        if counted is None:
             return None
+        lengths = counted if self.offsets is None else tuple((np.asarray(counted) - self.offsets).tolist())
         accel, gyro = (reading.get("accel"), reading.get("gyro")) if self.imu else (None, None)
         measured = reading.get("load_cells")
         stretch = None if self.EA is None or measured is None else (measured, self.EA)

@@ -61,7 +61,7 @@ class Truth:
     rotation: Array  # (3, 3) platform → world
     twist: Array  # (6,) [v; ω] at the centre of mass
     acceleration: Array  # (3,) the centre of mass's mean acceleration over the last step
-    encoder_lengths: Array  # (m,) what the winches paid out (or the cable lengths), m
+    encoder_lengths: Array  # (m,) what the winches paid out (or the cable lengths) + the robot's encoder_offsets, m
     load_cell_tensions: Array  # (m,) the tensions at the winches, N
     com_offset: Array = field(default_factory=lambda: np.zeros(3))  # (3,) the COM in the platform frame
 

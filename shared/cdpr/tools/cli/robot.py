@@ -590,3 +590,48 @@ def import_caspr(files: tuple[Path, ...], model: str | None, cable_set: str | No
         emit(reports[0])
     else:
         emit({"models": [r["model"] for r in reports], "robots": reports})
+
+
+@cli.command()
+@click.argument("recording", type=click.Path())
+@click.option("--robot", "nominal", required=True, metavar="NOMINAL",
+              help="the robot file the session's controller believed (a shipped name or a YAML path)")
+@click.option("-o", "--out", default=None, type=click.Path(dir_okay=False),
+              help="the calibrated robot file (default: NAME_calibrated.yaml)")
+@click.option("--platform-points", is_flag=True, help="identify the platform points b_i too")
+@click.option("--set-mass", is_flag=True, help="write the identified mass into the robot file's platform.mass (the "
+              "session's platform, payload included; scenarios often set theirs)")
+@click.option("--without-tracker", is_flag=True,
+              help="ignore the laser tracker's readings: self-calibration from the encoders alone")
+@click.option("--plot", default=None, type=click.Path(dir_okay=False),
+              help="a PNG of the encoder residuals before and after")
+@click.option("--json", "as_json", is_flag=True, help="print the report as JSON instead of a table")
+def calibrate(recording: str, nominal: str, out: str | None, platform_points: bool, set_mass: bool,
+              without_tracker: bool, plot: str | None, as_json: bool) -> None:
+    """Calibrate NOMINAL from RECORDING (a .rrd of a session with winch encoders): the frame's exit points and the
+    encoders' zero errors (with a laser tracker's readings, or self-calibration from the encoders alone), the
+    platform's mass from the load cells and the IMU. Prints each parameter with its standard uncertainty, the
+    residuals before and after, which parameters the data cannot identify; writes a robot file. Exit code 2 for
+    a recording without encoder readings or of another robot (docs/calibration.md)."""
+    from cdpr.config.loading import resolve
+    from cdpr.config.robot import home_held_problem, load_robot
+    from cdpr.tools import calibrate as cal
+
+    report = cal.calibrate(recording, nominal, platform_points=platform_points, tracker=not without_tracker,
+                           set_mass=set_mass)
+    target = Path(out or f"{report.robot.name}_calibrated.yaml")
+    try:
+        target.write_text(report.text, encoding="utf-8")
+    except OSError as exc:
+        raise InputError(f"-o: cannot write {target}: {exc.strerror or exc}") from None
+    written = load_robot(target, check_home=False)  # loads and validates like any other
+    if home_held_problem(load_robot(nominal, check_home=False), resolve(nominal, "robots", "robot")) is None and (
+            problem := home_held_problem(written, target)) is not None:
+        click.echo(f"cdpr: warning: {problem}", err=True)
+    if plot is not None:
+        cal.plot(report, plot)
+    if as_json:
+        emit({**cal.summary(report), "file": str(target)})
+    else:
+        click.echo(cal.table(report))
+        click.echo(f"\nwrote {target}")
