@@ -63,7 +63,7 @@ def test_self_calibration_names_the_frame_it_cannot_place() -> None:
     robot, A, offsets, _, _, samples = _synthetic(3)
     g = calibrate_geometry(robot, Samples(samples.encoders, samples.encoder_sigma))
     assert (g.rank, g.unknowns) == (26, 32)
-    assert g.rigid_gauge
+    assert g.gauge == "frame"
     named = {p.name for p in g.parameters if not p.identifiable}
     assert named == {f"cables.{i}.frame.{x}" for i in range(8) for x in "xyz"}
     assert np.abs(g.encoder_offsets - offsets).max() < 2e-3

@@ -100,7 +100,7 @@ class GeometryCalibration:
     rank: int
     unknowns: int  # parameters (the poses eliminated)
     null_space: Array  # (unknowns, unknowns − rank): what the data cannot tell apart
-    rigid_gauge: bool  # the null space is a rigid motion of the frame (no tracker)
+    gauge: str  # what the null space is: "frame" / "platform" / "frame and platform" (rigid motions), "" else
     iterations: int
 
 
@@ -238,6 +238,8 @@ def calibrate_geometry(robot: Robot, samples: Samples, *, platform_points: bool 
         raise InputError("encoders: every sample needs every cable's reading (NaN found)")
     if not samples.encoder_sigma > 0.0:
         raise InputError("encoder_sigma: must be > 0 (the readings' noise)")
+    if samples.tracker is not None and not np.all(np.asarray(samples.tracker_sigma, dtype=float) > 0.0):
+        raise InputError("tracker_sigma: must be > 0 (the readings' noise)")
     problem = _Problem(robot, samples, platform_points)
     m, N = robot.m, len(E)
     unknowns = problem.P
@@ -281,6 +283,8 @@ def calibrate_geometry(robot: Robot, samples: Samples, *, platform_points: bool 
             if cost1 <= cost * (1.0 + 1e-12) or scale < 1e-3:
                 break
             scale *= 0.5
+        if cost1 > cost * (1.0 + 1e-12):  # no step lowers the cost: at the minimum, to rounding
+            break
         theta, p, R, cost = theta1, p1, R1, cost1
         if scale * max(np.abs(dtheta).max(), np.abs(dx).max()) < STEP_TOL:
             break
@@ -296,19 +300,20 @@ def calibrate_geometry(robot: Robot, samples: Samples, *, platform_points: bool 
     rank = int(keep.sum())
     null = Q[:, ~keep]
     cov = (Q[:, keep] / lam[keep]) @ Q[:, keep].T
-    sigma = np.sqrt(np.clip(np.diag(cov), 0.0, None))
-    in_null = np.sum(null ** 2, axis=1)
-    condition = float(np.sqrt(lam[keep].max() / lam[keep].min())) if rank else float("inf")
     dof = max(1, int(np.sum(np.isfinite(after.encoders))) + (0 if after.tracker is None else int(
         np.sum(np.isfinite(after.tracker)))) - 6 * N - rank)
+    chi2 = float(cost / dof)
+    # for the noise as given; a reduced χ² above 1 says the readings were noisier: the uncertainties grow with it
+    sigma = np.sqrt(np.clip(np.diag(cov), 0.0, None) * max(1.0, chi2))
+    in_null = np.sum(null ** 2, axis=1)
+    condition = float(np.sqrt(lam[keep].max() / lam[keep].min())) if rank else float("inf")
     names = _names(m, platform_points)
     params = tuple(Parameter(n, float(v0), float(v), float(s), bool(q <= IDENTIFIABLE))
                    for n, v0, v, s, q in zip(names, theta0, theta, sigma, in_null, strict=True))
     A, o, B = problem.unpack(theta, b0)
     return GeometryCalibration(params, A.copy(), o.copy(), np.array(B, dtype=float), p, R, before, after,
-                               float(cost / dof), condition, rank, unknowns, null,
-                               bool(null.shape[1] and _is_rigid_motion(null, A, B if platform_points else None)),
-                               iterations)
+                               chi2, condition, rank, unknowns, null,
+                               _gauge(null, A, B if platform_points else None), iterations)
 
 
 def _min_norm_solve(S: Array, b: Array) -> Array:
@@ -336,11 +341,22 @@ def rigid_motions(frame_points: ArrayLike, platform_points: ArrayLike | None = N
     return G
 
 
-def _is_rigid_motion(null: Array, frame_points: Array, platform_points: Array | None) -> bool:
-    """Whether every direction the data cannot tell apart is a rigid motion (:func:`rigid_motions`)."""
+def _gauge(null: Array, frame_points: Array, platform_points: Array | None) -> str:
+    """What the directions the data cannot tell apart are: rigid motions of the ``frame``, of the ``platform``
+    frame's points, of ``frame and platform``, or "" (none, or not only rigid motions)."""
+    if null.shape[1] == 0:
+        return ""
     G = rigid_motions(frame_points, platform_points)
-    coef, *_ = np.linalg.lstsq(G, null, rcond=None)
-    return bool(np.abs(G @ coef - null).max() < 1e-3)
+
+    def within(cols: Array) -> bool:
+        coef, *_ = np.linalg.lstsq(cols, null, rcond=None)
+        return bool(np.abs(cols @ coef - null).max() < 1e-3)
+
+    if within(G[:, :6]):
+        return "frame"
+    if platform_points is not None and within(G[:, 6:]):
+        return "platform"
+    return "frame and platform" if platform_points is not None and within(G) else ""
 
 
 def calibrate_mass(robot: Robot, frame_points: ArrayLike, positions: ArrayLike, rotations: ArrayLike,

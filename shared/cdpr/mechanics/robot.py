@@ -164,7 +164,7 @@ class Robot:
                 value = getattr(self, name)
                 if name not in changes:
                     if np.any(value != value[0]):
-                        raise InputError(f"{name}: the robot has per-cable limits: give them for the new cables")
+                        raise InputError(f"{name}: the robot has per-cable values: give them for the new cables")
                     changes[name] = float(value[0])
         frozen: dict[str, Any] = {k: frozen_array(v) if isinstance(v, np.ndarray) else v for k, v in changes.items()}
         return dataclasses.replace(self, **frozen)

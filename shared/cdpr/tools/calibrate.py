@@ -19,6 +19,7 @@ import numpy as np
 
 from cdpr.errors import InputError
 from cdpr.mechanics.calibration import (
+    MAX_ITERATIONS,
     GeometryCalibration,
     MassCalibration,
     Parameter,
@@ -47,6 +48,8 @@ class Recorded:
     robot_name: str
     cables: int
     dt: float
+    cable_set: str
+    cable_model: str
 
 
 def _latency(sensors: dict[str, Any], name: str, dt: float) -> int:
@@ -69,11 +72,15 @@ def read_readings(path: str | Path) -> Recorded:
         dt, m = float(session["dt"]), int(session["cables"])
     except (KeyError, TypeError, ValueError):
         raise InputError(f"{path}: the session description lacks dt or cables") from None
-    sensors = ((info.get("sim") or {}).get("sensors")) or {}
+    sim: dict[str, Any] = info["sim"] if isinstance(info.get("sim"), dict) else {}
+    sensors = sim.get("sensors") or {}
     steps, channels = sensor_columns(data, m, SENSOR_COLUMNS)
     if "encoders" not in channels:
         raise InputError(f"{path}: no encoder readings (sensors/encoders): record a scenario whose sim.sensors has "
                          "encoders")
+    if not robot or not isinstance(sensors.get("encoders"), dict):
+        raise InputError(f"{path}: the recording's session/info lacks its robot or its encoders' noise (sim.sensors."
+                         "encoders): a recording made by cdpr run/up with encoders has them")
 
     def shifted(name: str, kind: str) -> tuple[Array, Array]:
         values = channels[name]
@@ -104,7 +111,8 @@ def read_readings(path: str | Path) -> Recorded:
         tracker_sigma = float(spec.get("sigma", 15e-6)) + float(spec.get("sigma_per_m", 6e-6)) * distance
         tracker_sigma = np.maximum(tracker_sigma, FLOOR_SIGMA)
     return Recorded(e_steps, E, max(sigma, FLOOR_SIGMA), tracker, tracker_sigma, reflector,
-                    aligned("load_cells", "load_cells"), aligned("accel", "imu"), str(robot.get("name", "")), m, dt)
+                    aligned("load_cells", "load_cells"), aligned("accel", "imu"), str(robot.get("name", "")), m, dt,
+                    str(robot.get("cable_set", "default")), str(sim.get("cable_model", "ideal")))
 
 
 @dataclass(frozen=True)
@@ -115,6 +123,8 @@ class CalibrationReport:
     text: str  # the calibrated robot file
     samples: int
     tracker: bool
+    tracker_readings: int = 0
+    warnings: tuple[str, ...] = ()
 
 
 def calibrate(recording: str | Path, nominal: str, *, platform_points: bool = False, tracker: bool = True,
@@ -132,6 +142,13 @@ def calibrate(recording: str | Path, nominal: str, *, platform_points: bool = Fa
         raise InputError(f"{recording}: a recording of robot {rec.robot_name!r}, not of {robot.name!r} (--robot)")
     if rec.cables != robot.m:
         raise InputError(f"{recording}: a recording of {rec.cables} cables; {nominal} has {robot.m}")
+    if rec.cable_set != robot.cable_set:
+        raise InputError(f"{recording}: a recording of cable set {rec.cable_set!r}; {nominal}'s cables are "
+                         f"{robot.cable_set!r} (calibrate a robot file whose cables are that set)")
+    warnings: list[str] = []
+    if rec.cable_model not in ("ideal", "ups"):
+        warnings.append(f"the recording's cables are {rec.cable_model}: the rigid-cable model takes their stretch "
+                        "(and sag) into the offsets and exit points")
     rows = np.arange(len(rec.steps))
     if len(rows) > max_samples:  # evenly spread over the session
         rows = rows[np.linspace(0, len(rows) - 1, max_samples).round().astype(int)]
@@ -141,28 +158,46 @@ def calibrate(recording: str | Path, nominal: str, *, platform_points: bool = Fa
                       None if rec.tracker_sigma is None else rec.tracker_sigma[rows],
                       np.zeros(3) if reflector is None else reflector)
     geometry = calibrate_geometry(robot, samples, platform_points=platform_points)
+    if geometry.iterations >= MAX_ITERATIONS:
+        warnings.append(f"Gauss-Newton stopped at its {MAX_ITERATIONS} iterations before its steps were below "
+                        "1e-10 m: the figures are the last iterate's")
+    if geometry.chi2_dof > 2.0:
+        warnings.append(f"the reduced chi2 is {geometry.chi2_dof:.3g}: the readings are noisier than the scenario "
+                        "says (or the model misses something); the uncertainties are scaled by its square root")
     mass = None
     if rec.load_cells is not None and rec.accel is not None:
         rates = cable_rates(rec.steps, rec.encoders - geometry.encoder_offsets, dt=rec.dt)
-        mass = calibrate_mass(robot, geometry.frame_points, geometry.positions, geometry.rotations,
-                              rec.load_cells[rows], rec.accel[rows], rates[rows])
+        try:
+            mass = calibrate_mass(robot.replace(platform_points=geometry.platform_points), geometry.frame_points,
+                                  geometry.positions, geometry.rotations, rec.load_cells[rows], rec.accel[rows],
+                                  None if np.isnan(rates[rows]).all() else rates[rows])
+        except InputError as exc:
+            warnings.append(f"mass not identified: {exc}")
+    damping = None if mass is None else _identified(mass, "damping.cable")
+    if damping is not None and (damping <= 0.0 or rec.cable_model not in ("ideal", "ups")):
+        warnings.append(f"cable damping {damping:.4g} N·s/m not written ("
+                        + ("not positive" if damping <= 0.0 else f"{rec.cable_model} cables do not apply it") + ")")
+        damping = None
     calibrated = robot.replace(frame_points=geometry.frame_points, encoder_offsets=geometry.encoder_offsets,
                                platform_points=geometry.platform_points)
     if set_mass and mass is not None and mass.parameters[0].identifiable:
         calibrated = calibrated.with_mass(mass.mass)
-    if mass is not None and (c := _identified(mass, "damping.cable")) is not None:
-        calibrated = calibrated.replace(cable_damping=c)
+    if damping is not None:
+        calibrated = calibrated.replace(cable_damping=damping)
     data = read_yaml(resolve(nominal, "robots", "robot"))
-    text = robot_file(data, robot, geometry, mass, Path(recording).name, set_mass)
-    return CalibrationReport(geometry, mass, calibrated, text, len(rows), rec.tracker is not None)
+    text = robot_file(data, robot, geometry, mass, Path(recording).name,
+                      calibrated.inertia if set_mass and mass is not None else None, damping)
+    readings = 0 if samples.tracker is None else int(np.isfinite(samples.tracker).all(axis=1).sum())
+    return CalibrationReport(geometry, mass, calibrated, text, len(rows), rec.tracker is not None, readings,
+                             tuple(warnings))
 
 
 def robot_file(data: dict[str, Any], robot: Robot, geometry: GeometryCalibration, mass: MassCalibration | None,
-               origin: str, set_mass: bool = False) -> str:
+               origin: str, inertia: Array | None = None, damping: float | None = None) -> str:
     """The nominal robot file's data with the identified values in place (its cables: ``frame``,
-    ``encoder_offset``, ``platform`` when identified; ``damping.cable``; ``platform.mass`` with ``set_mass``: the
-    mass identified is the session's platform's, payload included, which scenarios often set themselves), as YAML
-    text."""
+    ``encoder_offset``, ``platform`` when identified; ``damping.cable`` given ``damping``; ``platform.mass`` and
+    the solid shape's ``inertia`` given ``inertia``: the mass identified is the session's platform's, payload
+    included, which scenarios often set themselves), as YAML text."""
     from cdpr.tools.caspr import robot_yaml
 
     cables = data.get("cables")
@@ -175,17 +210,19 @@ def robot_file(data: dict[str, Any], robot: Robot, geometry: GeometryCalibration
         cable["encoder_offset"] = round(float(geometry.encoder_offsets[i]), 7)
         if f"cables.{i}.platform.x" in {p.name for p in geometry.parameters}:
             cable["platform"] = [round(float(x), 6) for x in geometry.platform_points[i] + com]
-    if set_mass and mass is not None and mass.parameters[0].identifiable:
+    set_mass = inertia is not None and mass is not None and mass.parameters[0].identifiable
+    if set_mass and mass is not None and inertia is not None:
         data.setdefault("platform", {})["mass"] = round(mass.mass, 4)
-    if mass is not None and (c := _identified(mass, "damping.cable")) is not None:
-        data.setdefault("damping", {})["cable"] = round(c, 4)
+        data["platform"]["inertia"] = [round(float(x), 6) for x in np.diag(inertia)]
+    if damping is not None:
+        data.setdefault("damping", {})["cable"] = round(damping, 4)
     left = [p.name for p in geometry.parameters if p.name not in identified]
     note = (f" Calibrated by `cdpr calibrate` from {origin}: {len(identified)} of {len(geometry.parameters)} "
             "geometric parameters identified" + (f" (not identifiable from that recording: {_ranges(left)}; "
                                                  "kept at the least change from the nominal file)" if left else "")
             + ("" if mass is None else f"; the session's platform mass {mass.mass:.5g} kg"
                + (" (written here)" if set_mass else ""))
-            + ("" if mass is None or _identified(mass, "damping.cable") is None else "; cable damping"))
+            + ("" if damping is None else "; cable damping"))
     data["source"] = f"{data.get('source', '')}{note}".strip()
     return robot_yaml(data, origin).replace(f"# Imported from CASPR ({origin}) by `cdpr import caspr`: what it "
                                             "assumed is in `source`.", f"# Calibrated from {origin} by `cdpr "
@@ -197,12 +234,13 @@ def _identified(mass: MassCalibration, name: str) -> float | None:
 
 
 def cable_rates(steps: Array, lengths: Array, dt: float) -> Array:
-    """Each cable's length rate (N, m), m/s: central differences of consecutive steps' lengths (NaN where a
-    neighbouring step has no reading)."""
+    """Each cable's length rate (N, m), m/s: central differences over the neighbouring readings (NaN at the ends
+    and where the neighbours are more than 20 steps apart: a gap)."""
     rates = np.full(lengths.shape, np.nan)
     if len(steps) >= 3:
-        ok = (steps[2:] - steps[:-2]) == 2
-        rates[1:-1][ok] = (lengths[2:][ok] - lengths[:-2][ok]) / (2.0 * dt)
+        gap = steps[2:] - steps[:-2]
+        ok = gap <= 40
+        rates[1:-1][ok] = (lengths[2:][ok] - lengths[:-2][ok]) / (gap[ok, None] * dt)
     return rates
 
 
@@ -214,13 +252,17 @@ def _ranges(names: list[str]) -> str:
 def table(report: CalibrationReport) -> str:
     """The identified parameters, the residuals before and after, the identification's condition, as text."""
     g = report.geometry
-    what = "encoders and laser tracker" if report.tracker else "encoders only: self-calibration"
+    what = (f"encoders, {report.tracker_readings} with a laser tracker reading" if report.tracker
+            else "encoders only: self-calibration")
     lines = [f"{report.samples} samples ({what}), {g.iterations} Gauss-Newton iterations",
              f"identification: rank {g.rank} of {g.unknowns} parameters, condition number {g.condition:.3g}, "
              f"reduced chi2 {g.chi2_dof:.3g}"]
     if g.rank < g.unknowns:
-        why = ("a rigid motion of the whole frame changes no cable length (a laser tracker fixes it)"
-               if g.rigid_gauge else "the recorded poses do not excite them")
+        why = {"frame": "a rigid motion of the whole frame changes no cable length (a laser tracker fixes it)",
+               "platform": "a rigid motion of the platform frame's points changes no cable length (give the "
+                           "platform points, or fewer of them)",
+               "frame and platform": "rigid motions of the frame and of the platform frame's points change no "
+                                     "cable length"}.get(g.gauge, "the recorded poses do not excite them")
         lines.append(f"not identifiable ({g.unknowns - g.rank} directions: {why}): "
                      + _ranges([p.name for p in g.parameters if not p.identifiable]))
     eb, tb = g.before.rms()
@@ -228,14 +270,16 @@ def table(report: CalibrationReport) -> str:
     lines.append(f"encoder residual RMS: {1e3 * eb:.4f} mm (nominal robot) -> {1e3 * ea:.4f} mm (calibrated)")
     if tb is not None and ta is not None:
         lines.append(f"laser tracker residual RMS: {1e3 * tb:.4f} mm -> {1e3 * ta:.4f} mm")
-    lines += ["", "| parameter | nominal | identified | change | standard uncertainty | identifiable |",
+    lines += [f"warning: {w}" for w in report.warnings]
+    lines += ["", "| parameter | nominal (--robot file) | identified | change | standard uncertainty | identifiable |",
               "|---|---:|---:|---:|---:|---|"]
     params: list[Parameter] = list(g.parameters) + (list(report.mass.parameters) if report.mass else [])
     for p in params:
         scale, unit = (1e3, "mm") if p.unit == "m" else (1.0, p.unit)
         change = scale * (p.value - p.nominal)
         lines.append(f"| {p.name} | {scale * p.nominal:.3f} | {scale * p.value:.3f} | {change:+.3f} {unit} | "
-                     f"{scale * p.sigma:.3f} {unit} | {'yes' if p.identifiable else '**no**'} |")
+                     f"{f'{scale * p.sigma:.3f} {unit}' if p.identifiable else '-'} | "
+                     f"{'yes' if p.identifiable else '**no**'} |")
     if report.mass is not None:
         lines.append(f"\nforce balance residual RMS {report.mass.residual_rms:.3g} N over {report.mass.samples} "
                      "samples (load cells and IMU)")
@@ -272,8 +316,9 @@ def summary(report: CalibrationReport) -> dict[str, Any]:
     params = list(g.parameters) + (list(report.mass.parameters) if report.mass else [])
     return {"samples": report.samples, "tracker": report.tracker, "iterations": g.iterations, "rank": g.rank,
             "unknowns": g.unknowns, "condition": g.condition, "chi2_dof": g.chi2_dof,
-            "rigid_gauge": g.rigid_gauge,
+            "gauge": g.gauge, "tracker_readings": report.tracker_readings, "warnings": list(report.warnings),
             "encoder_rms_before": g.before.rms()[0], "encoder_rms_after": g.after.rms()[0],
             "tracker_rms_before": g.before.rms()[1], "tracker_rms_after": g.after.rms()[1],
-            "parameters": [{"name": p.name, "nominal": p.nominal, "value": p.value, "sigma": p.sigma,
+            "parameters": [{"name": p.name, "nominal": p.nominal, "value": p.value,
+                            "sigma": p.sigma if p.identifiable else None,
                             "identifiable": p.identifiable, "unit": p.unit} for p in params]}

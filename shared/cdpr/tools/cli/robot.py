@@ -620,11 +620,15 @@ def calibrate(recording: str, nominal: str, out: str | None, platform_points: bo
     report = cal.calibrate(recording, nominal, platform_points=platform_points, tracker=not without_tracker,
                            set_mass=set_mass)
     target = Path(out or f"{report.robot.name}_calibrated.yaml")
+    staged = target.with_name(f".{target.name}.tmp")
     try:
-        target.write_text(report.text, encoding="utf-8")
+        staged.write_text(report.text, encoding="utf-8")
+        written = load_robot(staged, check_home=False)  # loads and validates like any other, before it replaces
+        staged.replace(target)
     except OSError as exc:
         raise InputError(f"-o: cannot write {target}: {exc.strerror or exc}") from None
-    written = load_robot(target, check_home=False)  # loads and validates like any other
+    finally:
+        staged.unlink(missing_ok=True)
     if home_held_problem(load_robot(nominal, check_home=False), resolve(nominal, "robots", "robot")) is None and (
             problem := home_held_problem(written, target)) is not None:
         click.echo(f"cdpr: warning: {problem}", err=True)
