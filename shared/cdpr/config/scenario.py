@@ -30,6 +30,7 @@ from cdpr.errors import InputError
 from cdpr.laws import LAWS
 from cdpr.mechanics.camera import Camera
 from cdpr.mechanics.control import Gains, Variant
+from cdpr.mechanics.interference import Obstacle
 from cdpr.mechanics.outputs import CommandKind
 from cdpr.mechanics.robot import GRAVITY, Robot
 from cdpr.mechanics.rotation import matrix_to_rotvec, rpy_to_matrix
@@ -275,10 +276,7 @@ class SimSpec(Strict):
     @field_validator("cameras")
     @classmethod
     def _distinct_cameras(cls, v: list[CameraSpec]) -> list[CameraSpec]:
-        names = [c.name for c in v]
-        if len(set(names)) != len(names):
-            raise ValueError(f"camera names must be distinct, got {names}")
-        return v
+        return _distinct_names(v, "camera")
 
     @model_validator(mode="after")
     def _params_match_model(self) -> SimSpec:
@@ -297,6 +295,54 @@ class SimSpec(Strict):
     def cable_params(self) -> StretchSpec | None:
         """The parameters of the scenario's cable model (its section of ``sim``), or None if it has none."""
         return getattr(self, self.cable_model) if self.model.params is not None else None
+
+
+def _distinct_names(items: list[Any], what: str) -> list[Any]:
+    names = [x.name for x in items]
+    if len(set(names)) != len(names):
+        raise ValueError(f"{what} names must be distinct, got {names}")
+    return items
+
+
+class ObstacleSpec(Strict):
+    """An obstacle of the scene (docs/scenarios.md): a solid box, cylinder, sphere, or a mesh's surface."""
+
+    name: str = Field(min_length=1, description="what reports name it by")
+    type: Literal["box", "cylinder", "sphere", "mesh"] = Field(description="its shape: box, cylinder, sphere or "
+                                                                "mesh (a triangle mesh's surface)")
+    position: list[FiniteFloat] = Field(min_length=3, max_length=3, description="its centre (a mesh: its file's "
+                                        "origin), world frame, m")
+    rpy: list[FiniteFloat] = Field(default_factory=lambda: [0.0, 0.0, 0.0], min_length=3, max_length=3,
+                                   description="roll, pitch, yaw, rad (a cylinder's axis is its z)")
+    size: list[PositiveFloat] | None = Field(None, min_length=3, max_length=3, description="box: full sizes, m")
+    radius: PositiveFloat | None = Field(None, description="cylinder and sphere, m")
+    length: PositiveFloat | None = Field(None, description="cylinder: along its axis, m")
+    file: str | None = Field(None, description="mesh: an .stl or .obj file, relative to the scenario's folder")
+    scale: PositiveFloat = Field(1.0, description="mesh: its file's units in m (0.001 for a file in mm)")
+
+    @model_validator(mode="after")
+    def _fields_of_its_type(self) -> ObstacleSpec:
+        needs = {"box": ("size",), "cylinder": ("radius", "length"), "sphere": ("radius",), "mesh": ("file",)}
+        for key in needs[self.type]:
+            if getattr(self, key) is None:
+                raise ValueError(f"{key}: a {self.type} needs it")
+        for key in ("size", "radius", "length", "file"):
+            if key not in needs[self.type] and getattr(self, key) is not None:
+                owners = ", ".join(t for t, k in needs.items() if key in k)
+                raise ValueError(f"{key}: a {self.type} has none (it is for {owners})")
+        return self
+
+
+class SceneSpec(Strict):
+    """What the cables and the platform may meet: ``cdpr check`` reports how near they come (docs/scenarios.md)."""
+
+    floor: FiniteFloat | None = Field(None, description="the floor's height (a plane z = floor), m")
+    obstacles: list[ObstacleSpec] = Field(default_factory=list, description="solid obstacles, each named")
+
+    @field_validator("obstacles")
+    @classmethod
+    def _distinct(cls, v: list[ObstacleSpec]) -> list[ObstacleSpec]:
+        return _distinct_names(v, "obstacle")
 
 
 class InitialSpec(Strict):
@@ -325,6 +371,7 @@ class ScenarioSpec(Strict):
                                        "the tension distribution")
     sim: SimSpec = Field(default_factory=lambda: SimSpec(), description="the plant: cable model, sensors, cameras, "
                          "watchdog")
+    scene: SceneSpec = Field(default_factory=lambda: SceneSpec(), description="obstacles and the floor (cdpr check)")
 
     @model_validator(mode="after")
     def _dt_sane(self) -> ScenarioSpec:
@@ -390,6 +437,7 @@ class Scenario:
     cable_model: str
     spec: ScenarioSpec
     cameras: tuple[Camera, ...] = ()
+    obstacles: tuple[Obstacle, ...] = ()
 
     def start_note(self) -> str | None:
         """None when the session starts at the robot's home pose; else where it starts and why (a scenario starts
@@ -473,6 +521,8 @@ def scenario_from_spec(spec: ScenarioSpec, where: str, base_dir: Path | None = N
     cameras = tuple(c.build(spec.dt, robot.com_offset) for c in spec.sim.cameras)
     for camera in cameras:
         check_markers_seen(camera, trajectory, duration, where)
+    obstacles = tuple(_obstacle(o, base_dir, f"{where}: scene.obstacles.{i}")
+                      for i, o in enumerate(spec.scene.obstacles))
     return Scenario(
         name=spec.name,
         description=spec.description,
@@ -490,7 +540,28 @@ def scenario_from_spec(spec: ScenarioSpec, where: str, base_dir: Path | None = N
         cable_model=spec.sim.cable_model,
         spec=spec,
         cameras=cameras,
+        obstacles=obstacles,
     )
+
+
+def _obstacle(spec: ObstacleSpec, base_dir: Path | None, where: str) -> Obstacle:
+    """The obstacle a scene's entry describes (a mesh read from its file: one line naming it if it cannot be)."""
+    from cdpr.config.mesh import load_mesh
+
+    R = rpy_to_matrix(*spec.rpy)
+    p = np.array(spec.position, dtype=float)
+    if spec.type == "mesh":
+        assert spec.file is not None
+        path = Path(spec.file)
+        if base_dir is not None and not path.is_absolute():
+            path = base_dir / path
+        try:
+            local = load_mesh(path) * spec.scale
+        except InputError as exc:
+            raise InputError(f"{where}.file: {exc}") from None
+        return Obstacle(spec.name, "mesh", p, R, triangles=local @ R.T + p)
+    return Obstacle(spec.name, spec.type, p, R, size=np.array(spec.size or [0.0, 0.0, 0.0], dtype=float),
+                    radius=float(spec.radius or 0.0), length=float(spec.length or 0.0))
 
 
 def check_markers_seen(camera: Camera, trajectory: Trajectory, duration: float, where: str) -> None:

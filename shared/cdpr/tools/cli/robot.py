@@ -639,3 +639,32 @@ def calibrate(recording: str, nominal: str, out: str | None, platform_points: bo
     else:
         click.echo(cal.table(report))
         click.echo(f"\nwrote {target}")
+
+
+@cli.command()
+@click.argument("scenario")
+@click.option("--margin", type=float, default=0.0, show_default=True,
+              help="the least clearance, m: a cable this near another, the platform, an obstacle or the floor violates")
+@click.option("--every", type=click.IntRange(min=1), default=10, show_default=True,
+              help="check every N steps (the steps before a violation one by one)")
+@click.option("--json", "as_json", is_flag=True, help="print the report as JSON instead of a table")
+def check(scenario: str, margin: float, every: int, as_json: bool) -> None:
+    """Check SCENARIO's trajectory before running it: the wrench-feasible workspace, the cables' length limits,
+    cable-cable and cable-platform interference, the scene's obstacles and floor (docs/scenarios.md). Prints the
+    least clearance of each kind and the first violation (time, step, what, how near) in one line. Exit code 0
+    when clean, 3 when violated, 2 for bad input."""
+    from cdpr.config.scenario import load_scenario
+    from cdpr.tools import check as chk
+
+    if not (np.isfinite(margin) and margin >= 0.0):
+        raise InputError(f"--margin: must be >= 0 (got {margin:.12g})")
+    report = chk.check_scenario(load_scenario(scenario, checks=()), margin, every)
+    if as_json:
+        emit(chk.summary(report))
+    else:
+        click.echo(chk.table(report))
+    if not report.ok:
+        assert report.violation is not None
+        step, kind, line = report.violation
+        click.echo(f"cdpr: {report.scenario}: {kind} at t = {step * report.dt:.3f} s (step {step}): {line}", err=True)
+        sys.exit(INFEASIBLE_EXIT)
