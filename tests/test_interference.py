@@ -18,6 +18,7 @@ from cdpr.config.robot import load_robot
 from cdpr.mechanics.interference import Obstacle, cable_platform, clearances, spans
 from cdpr.mechanics.rotation import rotvec_to_matrix
 from conftest import cdpr
+from test_distance import _faces_min, _interval_faces
 
 CUBE = np.array([[x, y, z] for x in (-0.5, 0.5) for y in (-0.5, 0.5) for z in (-0.5, 0.5)])
 CUBE_FACES = [(0, 1, 3), (0, 3, 2), (4, 6, 7), (4, 7, 5), (0, 4, 5), (0, 5, 1), (2, 3, 7), (2, 7, 6), (0, 2, 6),
@@ -150,3 +151,38 @@ def test_a_bad_scene_is_one_line_and_exit_2(tmp_path: Path, scene: dict[str, obj
     assert res.returncode == 2, res.stderr
     assert why in res.stderr
     assert len(res.stderr.strip().splitlines()) == 1, res.stderr
+
+
+def test_the_interference_free_workspace_agrees_with_a_brute_force_check_of_its_grid() -> None:
+    from cdpr.mechanics.interference import interference_free
+    from cdpr.mechanics.rotation import rpy_to_matrix
+    from cdpr.mechanics.workspace import grid_points
+
+    robot, margin = load_robot("caroca"), 0.02
+    R = rpy_to_matrix(0.0, 0.0, 0.3)
+    points, _, _ = grid_points(robot, 0.25)
+    free, _ = interference_free(robot, points, R, margin)
+    # brute force, the test's own: each pair's distance as the least over the faces of the unit square (the convex
+    # QP of the two segments' parameters: test_distance's), each cable's first micrometre tested against the box
+    half = 0.5 * np.array(robot.shape.size)
+    E = np.asarray(robot.frame_points)
+    pairs = [(i, j) for i in range(8) for j in range(i + 1, 8)
+             if not np.allclose(E[i], E[j]) and not np.allclose(robot.platform_points[i], robot.platform_points[j])]
+    expected = np.ones(len(points), dtype=bool)
+    B = points[:, None, :] + (robot.platform_points @ R.T)[None]  # (n, 8, 3)
+    for i, j in pairs:
+        d1, d2, r = B[:, i] - E[i], B[:, j] - E[j], np.broadcast_to(E[i] - E[j], B[:, i].shape)
+        M = np.stack([d1, -d2], axis=2)  # z = (s, t): r + s d1 − t d2
+        best = _faces_min(M, r, _interval_faces(2, [(0.0, 1.0)] * 2),
+                          lambda z: np.all((z >= -1e-12) & (z <= 1 + 1e-12), axis=1))
+        expected &= best > margin
+    for i in range(8):
+        u = (E[i] - B[:, i]) / np.linalg.norm(E[i] - B[:, i], axis=1)[:, None]
+        x = (B[:, i] + 1e-6 * u - points) @ R
+        expected &= ~np.all(np.abs(x) < half, axis=1)
+    assert np.array_equal(free, expected)
+    assert 0 < free.sum() < len(points)
+    res = cdpr("workspace", "caroca", "--step", "0.25", "--orientation", "0", "0", "0.3", "--interference",
+               "--margin", "0.02", "--tmin", "1", "--tmax", "6500", "--mass", "15")
+    assert res.returncode == 0, res.stderr
+    assert json.loads(res.stdout.strip().splitlines()[-1])["interference_free"] == int(free.sum())

@@ -20,7 +20,7 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 
 import numpy as np
-from numpy.typing import ArrayLike
+from numpy.typing import ArrayLike, NDArray
 
 from cdpr.mechanics import distance as dist
 from cdpr.mechanics.pulley import pulley_geometry
@@ -157,3 +157,38 @@ def clearances(robot: Robot, position: ArrayLike, R: ArrayLike, obstacles: tuple
         low = Nearest(float(z[k]), k, other="floor")
     return Clearances(cable_pairs(robot, exits, points), cable_platform(robot, exits, points, position, R),
                       obstacle, low)
+
+
+def interference_free(robot: Robot, positions: ArrayLike, R: ArrayLike, margin: float = 0.0
+                      ) -> tuple[NDArray[np.bool_], Array]:
+    """At each position (n, 3) with the orientation R: whether no two cables (that share no end) come within
+    ``margin`` and no cable runs into the platform (:func:`cable_pairs`, :func:`cable_platform`, vectorised), and
+    the least cable–cable distance there. Returns (free (n,) bool, distance (n,))."""
+    P = np.asarray(positions, dtype=float)
+    Rm = np.asarray(R, dtype=float)
+    B = P[:, None, :] + (np.asarray(robot.platform_points) @ Rm.T)[None]  # (n, m, 3)
+    if robot.pulleys is None:
+        E = np.broadcast_to(np.asarray(robot.frame_points, dtype=float), B.shape)
+    else:
+        E = pulley_geometry(robot.frame_points, robot.pulleys, B).tangent_points
+    m = robot.m
+    i, j = np.triu_indices(m, 1)
+    apart = ((np.linalg.norm(E[0, i] - E[0, j], axis=1) > SHARED)
+             & (np.linalg.norm(B[0, i] - B[0, j], axis=1) > SHARED))
+    i, j = i[apart], j[apart]
+    nearest = np.full(len(P), np.inf)
+    if len(i):
+        p0, p1, q0, q1 = E[:, i], B[:, i], E[:, j], B[:, j]
+        s, t = dist.segment_parameters(p0, p1, q0, q1)
+        d = np.linalg.norm(p0 + s[..., None] * (p1 - p0) - q0 - t[..., None] * (q1 - q0), axis=2)
+        nearest = d.min(axis=1)
+    free = nearest > margin
+    if robot.shape.type == "box":
+        half = 0.5 * np.asarray(robot.shape.size, dtype=float)
+        local_b = np.asarray(robot.platform_points) + np.asarray(robot.com_offset)
+        on = np.abs(np.abs(local_b) - half) < _ON_FACE  # (m, 3): the faces each point lies on
+        checked = np.all(np.abs(local_b) < half + _ON_FACE, axis=1) & on.any(axis=1)
+        u = (E - B) @ Rm  # (n, m, 3) box frame
+        outward = np.where(on[None], np.sign(local_b)[None] * u, -np.inf).max(axis=2)  # (n, m)
+        free &= ~np.any(checked[None] & (outward < 0.0), axis=1)
+    return np.asarray(free, dtype=bool), np.asarray(nearest, dtype=float)

@@ -478,11 +478,15 @@ def _number_or_list(values: np.ndarray) -> float | list[float]:
 @click.option("--tmax", type=float, default=None, help="N (default: the robot's)")
 @click.option("--rrd", type=click.Path(), default=None, help="write the points to this .rrd file")
 @click.option("--spawn", is_flag=True, help="show the points in a new Rerun viewer")
+@click.option("--interference", is_flag=True,
+              help="also the interference-free workspace: no two cables within --margin, no cable into the platform")
+@click.option("--margin", type=float, default=0.0, show_default=True, help="with --interference: m")
 @_cable_set_option()
 def workspace(robot: str, payload: float, mass: float | None, step: float,
               orientation: tuple[float, float, float], angles: str, tmin: float | None, tmax: float | None,
-              rrd: str | None, spawn: bool, cable_set: str | None) -> None:
-    """Static wrench-feasible workspace of ROBOT on a grid over its frame box (JSON; points to Rerun)."""
+              rrd: str | None, spawn: bool, interference: bool, margin: float, cable_set: str | None) -> None:
+    """Static wrench-feasible workspace of ROBOT on a grid over its frame box (JSON; points to Rerun); with
+    --interference, the part of it free of cable interference too (docs/workspace.md)."""
     import time
 
     from cdpr.mechanics.rotation import angles_to_matrix
@@ -499,6 +503,17 @@ def workspace(robot: str, payload: float, mass: float | None, step: float,
     R = angles_to_matrix(angles, orientation)
     start = time.perf_counter()
     ws = compute_workspace(r, step, R, 0.0, lo, hi)
+    free = None
+    if interference:
+        import dataclasses
+
+        from cdpr.mechanics.interference import interference_free
+
+        if not (np.isfinite(margin) and margin >= 0.0):
+            raise InputError(f"--margin: must be >= 0 (got {margin:.12g})")
+        free = interference_free(r, ws.points, R, margin)[0]
+        wrench_ok = np.asarray(ws.feasible, dtype=bool)
+        ws = dataclasses.replace(ws, feasible=wrench_ok & free)  # what the picture shows: both
     seconds = time.perf_counter() - start
     box = ws.bounding_box()
     out: dict[str, Any] = {
@@ -510,6 +525,9 @@ def workspace(robot: str, payload: float, mass: float | None, step: float,
         "bounding_box": None if box is None else {"min": box[0].tolist(), "max": box[1].tolist()},
         "seconds": seconds, "us_per_point": 1e6 * seconds / max(1, ws.points.shape[0]), "rrd": rrd,
     }
+    if free is not None:  # feasible above is then wrench-feasible and interference-free
+        out.update({"margin": margin, "wrench_feasible": int(wrench_ok.sum()), "interference_free": int(free.sum()),
+                    "interfering_of_wrench_feasible": int((wrench_ok & ~free).sum())})
     if rrd is not None or spawn:
         info = {"workspace": dict(out), "robot": r.summary()}
         out["problems"] = record_workspace(r, ws, R, rrd=rrd, spawn=spawn, info=info)
