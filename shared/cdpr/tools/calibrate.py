@@ -205,13 +205,15 @@ def robot_file(data: dict[str, Any], robot: Robot, geometry: GeometryCalibration
         raise InputError(f"robot file: expected its {robot.m} cables under 'cables'")
     com = np.asarray(robot.com_offset)
     identified = {p.name for p in geometry.parameters if p.identifiable}
+    platform = any(p.name.endswith(".platform.x") for p in geometry.parameters)  # --platform-points
     for i, cable in enumerate(cables):
         cable["frame"] = [round(float(x), 6) for x in geometry.frame_points[i]]
         cable["encoder_offset"] = round(float(geometry.encoder_offsets[i]), 7)
-        if f"cables.{i}.platform.x" in {p.name for p in geometry.parameters}:
+        if platform:
             cable["platform"] = [round(float(x), 6) for x in geometry.platform_points[i] + com]
-    set_mass = inertia is not None and mass is not None and mass.parameters[0].identifiable
-    if set_mass and mass is not None and inertia is not None:
+    set_mass = False
+    if inertia is not None and mass is not None and mass.parameters[0].identifiable:
+        set_mass = True
         data.setdefault("platform", {})["mass"] = round(mass.mass, 4)
         data["platform"]["inertia"] = [round(float(x), 6) for x in np.diag(inertia)]
     if damping is not None:
@@ -224,9 +226,8 @@ def robot_file(data: dict[str, Any], robot: Robot, geometry: GeometryCalibration
                + (" (written here)" if set_mass else ""))
             + ("" if damping is None else "; cable damping"))
     data["source"] = f"{data.get('source', '')}{note}".strip()
-    return robot_yaml(data, origin).replace(f"# Imported from CASPR ({origin}) by `cdpr import caspr`: what it "
-                                            "assumed is in `source`.", f"# Calibrated from {origin} by `cdpr "
-                                            "calibrate`: what it identified is in `source`.")
+    return robot_yaml(data, origin, f"Calibrated from {origin} by `cdpr calibrate`: what it identified is in "
+                                    "`source`.")
 
 
 def _identified(mass: MassCalibration, name: str) -> float | None:

@@ -540,8 +540,9 @@ def import_caspr(paths: list[Path], model: str | None = None, cable_set: str | N
     return [i.report for i in imported], None
 
 
-def robot_yaml(data: dict[str, Any], origin: str) -> str:
-    """The robot file's text: a header naming the import, short lists (points, limits) and cables on one line."""
+def robot_yaml(data: dict[str, Any], origin: str, header: str | None = None) -> str:
+    """The robot file's text: a header (default: naming the CASPR import of ``origin``), short lists (points,
+    limits) and cables on one line."""
     import yaml
 
     class Dumper(yaml.SafeDumper):
@@ -558,4 +559,6 @@ def robot_yaml(data: dict[str, Any], origin: str) -> str:
     Dumper.add_representer(list, short_list)
     Dumper.add_representer(dict, small_map)
     body = yaml.dump(data, Dumper=Dumper, sort_keys=False, allow_unicode=True, width=110)
-    return f"# Imported from CASPR ({origin}) by `cdpr import caspr`: what it assumed is in `source`.\n{body}"
+    if header is None:
+        header = f"Imported from CASPR ({origin}) by `cdpr import caspr`: what it assumed is in `source`."
+    return f"# {header}\n{body}"
