@@ -67,6 +67,11 @@ def _segments(rng: np.random.Generator, n: int) -> tuple[np.ndarray, ...]:
     q1[col] = p0[col] + rng.uniform(-1, 2, (k, 1)) * (p1[col] - p0[col])
     deg = slice(4 * k, 4 * k + k // 2)  # a point
     q1[deg] = q0[deg]
+    near = slice(4 * k + k // 2, 5 * k)  # nearly parallel: 1e-9 to 1e-3 rad apart, crossing or not
+    h = k - k // 2
+    turn = np.array([rotvec_to_matrix(w) for w in rng.normal(0, 1, (h, 3)) * 10 ** rng.uniform(-9, -3, (h, 1))])
+    q0[near] = p0[near] + rng.normal(0, 0.3, (h, 3)) * rng.choice([0.0, 1e-6, 1.0], (h, 1))
+    q1[near] = q0[near] + np.einsum("nij,nj->ni", turn, p1[near] - p0[near]) * rng.uniform(-2, 2, (h, 1))
     return p0, p1, q0, q1
 
 
@@ -77,9 +82,10 @@ def test_segment_segment_against_the_faces_of_the_unit_square() -> None:
                      lambda z: np.all((z >= -FEASIBLE) & (z <= 1 + FEASIBLE), axis=1))
     got = np.array([dist.segments(*x).distance for x in zip(p0, p1, q0, q1, strict=True)])
     assert np.abs(got - ref).max() <= TOL
-    s, t = dist.segment_parameters(p0, p1, q0, q1)  # the vectorised form, the same
+    d, s, t = dist.segment_distances(p0, p1, q0, q1)  # the vectorised form, the same
+    assert np.abs(d - ref).max() <= TOL
     vec = np.linalg.norm(p0 + s[:, None] * (p1 - p0) - q0 - t[:, None] * (q1 - q0), axis=1)
-    assert np.abs(vec - ref).max() <= TOL
+    assert np.abs(vec - ref).max() <= 1e-9  # the closest points of a nearly parallel pair: to its conditioning
     assert np.all(got[2 * (N // 5):3 * (N // 5)] <= TOL)  # touching
 
 

@@ -144,9 +144,11 @@ def test_cdpr_check_gives_the_clearance_to_an_obstacle_and_its_margin(tmp_path: 
      "radius: a box has none"),
     ({"obstacles": [{"name": "m", "type": "mesh", "position": [0, 0, 0], "file": "missing.stl"}]}, "missing.stl"),
     ({"obstacles": [{"name": "m", "type": "mesh", "position": [0, 0, 0], "file": "bad.stl"}]}, "bad.stl"),
+    ({"obstacles": [{"name": "m", "type": "mesh", "position": [0, 0, 0], "file": "short.obj"}]}, "line 2"),
 ])
 def test_a_bad_scene_is_one_line_and_exit_2(tmp_path: Path, scene: dict[str, object], why: str) -> None:
     (tmp_path / "bad.stl").write_bytes(b"\xff\xfe not a mesh at all" * 10)
+    (tmp_path / "short.obj").write_text("v 0 0 0\nv 1 0\nv 0 1 0\nf 1 2 3\n", encoding="utf-8")
     res = cdpr("check", str(_scenario(tmp_path, "caroca_15kg_obstacle", scene=scene)))
     assert res.returncode == 2, res.stderr
     assert why in res.stderr

@@ -49,6 +49,8 @@ def _stl(data: bytes, where: str) -> Array:
         words = line.split()
         if words[:1] == ["vertex"]:
             try:
+                if len(words) < 4:
+                    raise ValueError
                 vertices.append([float(w) for w in words[1:4]])
             except ValueError:
                 raise InputError(f"{where}: line {number}: a vertex needs 3 numbers") from None
@@ -64,6 +66,8 @@ def _obj(data: bytes, where: str) -> Array:
         words = line.split("#", 1)[0].split()
         try:
             if words[:1] == ["v"]:
+                if len(words) < 4:
+                    raise ValueError
                 vertices.append([float(w) for w in words[1:4]])
             elif words[:1] == ["f"]:
                 idx = [int(w.split("/")[0]) for w in words[1:]]

@@ -25,6 +25,7 @@ from numpy.typing import ArrayLike
 from cdpr.mechanics.rotation import Array
 
 _PARALLEL = 1e-14  # relative: segments whose directions' cross product is below this are handled as parallel
+_NEAR_PARALLEL = 1e-8  # sin² of the angle below which segment_distances searches instead of solving (1e-4 rad)
 
 
 class Closest(NamedTuple):
@@ -65,12 +66,85 @@ def segment_parameters(p0: Array, p1: Array, q0: Array, q1: Array) -> tuple[Arra
     return s, t
 
 
+def segment_distances(p0: Array, p1: Array, q0: Array, q1: Array) -> tuple[Array, Array, Array]:
+    """(distance, s, t) of segment pairs, vectorised over leading axes (…, 3): the least of the interior stationary
+    point (:func:`segment_parameters`) and the four edges of the unit square (each end of one segment against the
+    other, clamped) — every face of the convex problem, so that nearly parallel segments, whose interior point is
+    ill-conditioned, are exact too; an interior point's distance is the lines' ``|r · n| / |n|``, n = d1 × d2."""
+    d1, d2, r = p1 - p0, q1 - q0, p0 - q0
+    a = np.einsum("...i,...i->...", d1, d1)
+    e = np.einsum("...i,...i->...", d2, d2)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        cands_s, cands_t, dists = [], [], []
+        for fix_s in (0.0, 1.0):  # an end of p against q
+            x = p0 + fix_s * d1
+            t = np.where(e > 0.0, np.clip(np.einsum("...i,...i->...", x - q0, d2) / np.where(e > 0.0, e, 1.0), 0, 1),
+                         0.0)
+            cands_s.append(np.full_like(t, fix_s))
+            cands_t.append(t)
+            dists.append(np.linalg.norm(x - q0 - t[..., None] * d2, axis=-1))
+        for fix_t in (0.0, 1.0):  # an end of q against p
+            y = q0 + fix_t * d2
+            s = np.where(a > 0.0, np.clip(np.einsum("...i,...i->...", y - p0, d1) / np.where(a > 0.0, a, 1.0), 0, 1),
+                         0.0)
+            cands_s.append(s)
+            cands_t.append(np.full_like(s, fix_t))
+            dists.append(np.linalg.norm(p0 + s[..., None] * d1 - y, axis=-1))
+        b = np.einsum("...i,...i->...", d1, d2)
+        c = np.einsum("...i,...i->...", d1, r)
+        f = np.einsum("...i,...i->...", d2, r)
+        denom = a * e - b * b
+        ok = denom > _NEAR_PARALLEL * a * e
+        s = (b * f - c * e) / np.where(ok, denom, 1.0)
+        t = (a * f - b * c) / np.where(ok, denom, 1.0)
+        inside = ok & (s >= 0.0) & (s <= 1.0) & (t >= 0.0) & (t <= 1.0)
+        n = np.cross(d1, d2)
+        line = np.abs(np.einsum("...i,...i->...", r, n)) / np.sqrt(np.einsum("...i,...i->...", n, n))
+        cands_s.append(np.where(inside, s, 0.0))
+        cands_t.append(np.where(inside, t, 0.0))
+        dists.append(np.where(inside, line, np.inf))
+        # nearly parallel (the interior point ill-conditioned, < 1e-4 rad): the distance from p(s) to segment q is
+        # convex in s and well-conditioned; a golden-section search over s finds its least to the last bit
+        near = ~ok & (a > 0.0) & (e > 0.0)
+        s_near = np.zeros_like(a)
+        if np.any(near):
+            s_near[near] = _golden_s(p0[near], d1[near], q0[near], d2[near], e[near])
+        x = p0 + s_near[..., None] * d1
+        t_near = np.where(e > 0.0, np.clip(np.einsum("...i,...i->...", x - q0, d2) / np.where(e > 0.0, e, 1.0), 0, 1),
+                          0.0)
+        cands_s.append(s_near)
+        cands_t.append(t_near)
+        dists.append(np.where(near, np.linalg.norm(x - q0 - t_near[..., None] * d2, axis=-1), np.inf))
+    D_ = np.stack(dists, axis=-1)
+    k = np.argmin(D_, axis=-1)[..., None]
+    pick = lambda xs: np.take_along_axis(np.stack(xs, axis=-1), k, axis=-1)[..., 0]  # noqa: E731
+    return pick(dists), pick(cands_s), pick(cands_t)
+
+
+def _golden_s(p0: Array, d1: Array, q0: Array, d2: Array, e: Array) -> Array:
+    """argmin over s in [0, 1] of the distance from p0 + s d1 to the segment q0 + t d2 (rows (n, 3)), a convex
+    function: golden-section search, 80 halvings of the bracket by the golden ratio (below 1e-16)."""
+    def f(s: Array) -> Array:
+        x = p0 + s[:, None] * d1
+        t = np.clip(np.einsum("ni,ni->n", x - q0, d2) / e, 0.0, 1.0)
+        return np.linalg.norm(x - q0 - t[:, None] * d2, axis=1)
+
+    lo, hi = np.zeros(len(p0)), np.ones(len(p0))
+    g = (math.sqrt(5.0) - 1.0) / 2.0
+    for _ in range(80):
+        x1, x2 = hi - g * (hi - lo), lo + g * (hi - lo)
+        left = f(x1) <= f(x2)
+        hi = np.where(left, x2, hi)
+        lo = np.where(left, lo, x1)
+    return 0.5 * (lo + hi)
+
+
 def segments(p0: ArrayLike, p1: ArrayLike, q0: ArrayLike, q1: ArrayLike) -> Closest:
     """Segment p0p1 to segment q0q1."""
     P0, P1, Q0, Q1 = (np.asarray(x, dtype=float) for x in (p0, p1, q0, q1))
-    s, t = segment_parameters(P0, P1, Q0, Q1)
+    d, s, t = segment_distances(P0, P1, Q0, Q1)
     a, b = P0 + float(s) * (P1 - P0), Q0 + float(t) * (Q1 - Q0)
-    return Closest(float(np.linalg.norm(a - b)), a, b, float(s))
+    return Closest(float(d), a, b, float(s))
 
 
 def segment_point(p0: ArrayLike, p1: ArrayLike, x: ArrayLike) -> Closest:

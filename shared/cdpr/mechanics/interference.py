@@ -83,26 +83,28 @@ def spans(robot: Robot, position: ArrayLike, R: ArrayLike) -> tuple[Array, Array
     return pulley_geometry(robot.frame_points, robot.pulleys, B).tangent_points, B
 
 
-def pair_sides(exits: Array, points: Array) -> tuple[Array, Array, Array, Array]:
+def pair_sides(exits: Array, points: Array) -> tuple[Array, Array, Array, Array, Array]:
     """For every pair of cables that share no end: (i, j, side, interior). ``side`` is the sign of
     ``(d_i × d_j) · (e_j − e_i)`` (d: the spans, e: their frame ends) — which side of each other the two lines
     pass; it flips when they cross. ``interior``: the lines' closest points lie within both spans. Between two
     poses, a pair whose side flipped with its closest points within the spans has crossed: two cables passed
-    through each other, which a distance at each pose alone can miss."""
+    through each other, which a distance at each pose alone can miss — unless the side flipped because the spans
+    turned through parallel (their normal ``d_i × d_j`` reversed, also returned: compare it across the poses)."""
     m = len(exits)
     i, j = np.triu_indices(m, 1)
     apart = ((np.linalg.norm(exits[i] - exits[j], axis=1) > SHARED)
              & (np.linalg.norm(points[i] - points[j], axis=1) > SHARED))
     i, j = i[apart], j[apart]
     d1, d2, r = points[i] - exits[i], points[j] - exits[j], exits[i] - exits[j]
-    side = np.sign(np.einsum("ni,ni->n", np.cross(d1, d2), -r))
+    normal = np.cross(d1, d2)
+    side = np.sign(np.einsum("ni,ni->n", normal, -r))
     a, e, b = (np.einsum("ni,ni->n", x, y) for x, y in ((d1, d1), (d2, d2), (d1, d2)))
     c, f = np.einsum("ni,ni->n", d1, r), np.einsum("ni,ni->n", d2, r)
     denom = a * e - b * b
     with np.errstate(divide="ignore", invalid="ignore"):
         s, t = (b * f - c * e) / denom, (a * f - b * c) / denom
     interior = (denom > 0.0) & (s >= 0.0) & (s <= 1.0) & (t >= 0.0) & (t <= 1.0)
-    return i, j, side, interior
+    return i, j, side, interior, normal
 
 
 def cable_pairs(robot: Robot, exits: Array, points: Array) -> Nearest:
@@ -114,9 +116,7 @@ def cable_pairs(robot: Robot, exits: Array, points: Array) -> Nearest:
     i, j = i[apart], j[apart]
     if not len(i):
         return Nearest(np.inf)
-    p0, p1, q0, q1 = exits[i], points[i], exits[j], points[j]
-    s, t = dist.segment_parameters(p0, p1, q0, q1)
-    d = np.linalg.norm(p0 + s[:, None] * (p1 - p0) - q0 - t[:, None] * (q1 - q0), axis=1)
+    d = dist.segment_distances(exits[i], points[i], exits[j], points[j])[0]
     k = int(np.argmin(d))
     return Nearest(float(d[k]), int(i[k]), int(j[k]))
 
@@ -164,8 +164,10 @@ def interference_free(robot: Robot, positions: ArrayLike, R: ArrayLike, margin: 
     """At each position (n, 3) with the orientation R: whether no two cables (that share no end) come within
     ``margin`` and no cable runs into the platform (:func:`cable_pairs`, :func:`cable_platform`, vectorised), and
     the least cable–cable distance there. Returns (free (n,) bool, distance (n,))."""
-    P = np.asarray(positions, dtype=float)
+    P = np.asarray(positions, dtype=float).reshape(-1, 3)
     Rm = np.asarray(R, dtype=float)
+    if len(P) == 0:
+        return np.zeros(0, dtype=bool), np.zeros(0)
     B = P[:, None, :] + (np.asarray(robot.platform_points) @ Rm.T)[None]  # (n, m, 3)
     if robot.pulleys is None:
         E = np.broadcast_to(np.asarray(robot.frame_points, dtype=float), B.shape)
@@ -173,15 +175,12 @@ def interference_free(robot: Robot, positions: ArrayLike, R: ArrayLike, margin: 
         E = pulley_geometry(robot.frame_points, robot.pulleys, B).tangent_points
     m = robot.m
     i, j = np.triu_indices(m, 1)
-    apart = ((np.linalg.norm(E[0, i] - E[0, j], axis=1) > SHARED)
-             & (np.linalg.norm(B[0, i] - B[0, j], axis=1) > SHARED))
+    a, b = np.asarray(robot.frame_points), np.asarray(robot.platform_points)  # ends shared by design: the robot's
+    apart = (np.linalg.norm(a[i] - a[j], axis=1) > SHARED) & (np.linalg.norm(b[i] - b[j], axis=1) > SHARED)
     i, j = i[apart], j[apart]
     nearest = np.full(len(P), np.inf)
     if len(i):
-        p0, p1, q0, q1 = E[:, i], B[:, i], E[:, j], B[:, j]
-        s, t = dist.segment_parameters(p0, p1, q0, q1)
-        d = np.linalg.norm(p0 + s[..., None] * (p1 - p0) - q0 - t[..., None] * (q1 - q0), axis=2)
-        nearest = d.min(axis=1)
+        nearest = dist.segment_distances(E[:, i], B[:, i], E[:, j], B[:, j])[0].min(axis=1)
     free = nearest > margin
     if robot.shape.type == "box":
         half = 0.5 * np.asarray(robot.shape.size, dtype=float)
@@ -190,5 +189,5 @@ def interference_free(robot: Robot, positions: ArrayLike, R: ArrayLike, margin: 
         checked = np.all(np.abs(local_b) < half + _ON_FACE, axis=1) & on.any(axis=1)
         u = (E - B) @ Rm  # (n, m, 3) box frame
         outward = np.where(on[None], np.sign(local_b)[None] * u, -np.inf).max(axis=2)  # (n, m)
-        free &= ~np.any(checked[None] & (outward < 0.0), axis=1)
+        free &= ~np.any(checked[None] & (outward <= 0.0), axis=1)
     return np.asarray(free, dtype=bool), np.asarray(nearest, dtype=float)

@@ -3,7 +3,9 @@ cables' length limits, cable–cable and cable–platform interference, the scen
 
 The trajectory is sampled every ``every`` steps of the scenario's dt (and the workspace at
 :data:`cdpr.mechanics.workspace.SAMPLE_PERIOD`); where a sample violates, the steps since the sample before are
-checked one by one, so that the first violation is given to the step. A violation: a clearance at or below the
+checked one by one, so that the first violation is given to the step. A clearance that dips below the margin and
+comes back between two samples is missed (crossings are not: the sides of each pair are compared from sample to
+sample); ``every`` 1 checks every step. A violation: a clearance at or below the
 margin, a cable that runs into the platform (its clearance is an angle: :mod:`cdpr.mechanics.interference`), a
 cable longer than its ``max_length``, a platform corner at or below the floor, no tensions within the
 limits for the pose's static or feed-forward wrench.
@@ -57,7 +59,7 @@ def _corners(robot: Any, position: Array, R: Array) -> Array | None:
     return np.asarray(position) + local @ R.T
 
 
-Sides = tuple[Array, Array, Array]  # (i, j, side) of each pair of cables (pair_sides)
+Sides = tuple[Array, Array, Array, Array, Array]  # (i, j, side, interior, normal) of the cable pairs (pair_sides)
 
 
 def _pose_checks(scenario: Any, step: int, margin: float, before: tuple[int, Sides] | None
@@ -70,9 +72,12 @@ def _pose_checks(scenario: Any, step: int, margin: float, before: tuple[int, Sid
     floor = scenario.spec.scene.floor
     c = clearances(robot, p, R, scenario.obstacles, floor)
     out: list[tuple[str, float, str, bool]] = []
-    i, j, side, interior = pair_sides(*spans(robot, p, R))
-    if before is not None and len(before[1][2]) == len(side):
-        crossed = np.flatnonzero((before[1][2] * side < 0.0) & interior.astype(bool))
+    sides = pair_sides(*spans(robot, p, R))
+    i, j, side, interior, normal = sides
+    if before is not None and np.array_equal(before[1][0], i) and np.array_equal(before[1][1], j):
+        _, _, side0, interior0, normal0 = before[1]
+        turned = np.einsum("ni,ni->n", normal0, normal) > 0.0  # not a flip through parallel
+        crossed = np.flatnonzero((side0 * side < 0.0) & turned & (interior.astype(bool) | interior0.astype(bool)))
         if len(crossed):
             k = int(crossed[0])
             out.append(("cable-cable", 0.0, f"cables {i[k]} and {j[k]} crossed since step {before[0]}", True))
@@ -96,7 +101,7 @@ def _pose_checks(scenario: Any, step: int, margin: float, before: tuple[int, Sid
     worst = int(np.argmin(slack))
     out.append(("length", float(slack[worst]), f"cable {worst} (its max_length {robot.max_length[worst]:g} m)",
                 bool(slack[worst] < 0.0)))
-    return out, (i, j, side)
+    return out, sides
 
 
 def check_scenario(scenario: Any, margin: float = 0.0, every: int = 10) -> CheckReport:

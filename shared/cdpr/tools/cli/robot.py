@@ -502,6 +502,8 @@ def workspace(robot: str, payload: float, mass: float | None, step: float,
         raise InputError("--orientation: roll, pitch and yaw must be finite")
     R = angles_to_matrix(angles, orientation)
     start = time.perf_counter()
+    if margin and not interference:
+        raise InputError("--margin: the interference-free workspace's (give --interference)")
     ws = compute_workspace(r, step, R, 0.0, lo, hi)
     free = None
     if interference:
