@@ -612,6 +612,37 @@ def test_an_ibvs_answer_is_the_same_when_its_state_comes_again_after_later_frame
         np.testing.assert_array_equal(core.step(k).tensions, first[k])
 
 
+@pytest.mark.parametrize("restart", [240, 241, 242, 250])  # at an exposure, within its latency, between them
+def test_a_sim_started_again_from_a_snapshot_sends_the_frames_an_uninterrupted_one_sends(restart: int) -> None:
+    """The frames exposed in the latency steps before a sim's snapshot go out after the restart (they are in the
+    snapshot), none twice: the controller waiting for one (IBVS) gets it, as from a sim that never stopped."""
+    import msgspec
+
+    from cdpr_sim.cameras import CameraSuite
+
+    sc = load_scenario("caroca_15kg_ibvs")
+    cams = tuple(sc.cameras)
+    assert cams[0].latency >= 2
+    assert cams[0].every > cams[0].latency
+
+    def run(suite: CameraSuite, steps: range) -> list[Any]:
+        out = []
+        for k in steps:
+            s = sc.trajectory.sample(k * sc.dt)
+            if suite.due(k):
+                out += [(k, f) for f in suite.step(k, k * sc.dt, s.position, s.rotation)]
+        return out
+
+    whole = run(CameraSuite(cams, seed=3), range(300))
+    before = CameraSuite(cams, seed=3)
+    first = run(before, range(restart + 1))  # the old sim published step `restart`, then its snapshot went out
+    snapshot = msgspec.msgpack.decode(msgspec.msgpack.encode(before.snapshot()))  # as the telemetry carries it
+    again = CameraSuite(cams, seed=3)
+    again.restore(snapshot)
+    second = run(again, range(restart, 300))  # the new sim publishes step `restart` again, then goes on
+    assert [(k, f.step, f.pixels) for k, f in first + second] == [(k, f.step, f.pixels) for k, f in whole]
+
+
 @pytest.mark.slow
 def test_ibvs_brings_the_platform_to_the_desired_image(tmp_path: Path, ibvs_in_process: tuple[dict, str]) -> None:
     """caroca_15kg_ibvs, multi-process and in-process: the same states (digest), the markers' image at B to

@@ -18,6 +18,7 @@ from __future__ import annotations
 import math
 from collections import deque
 from collections.abc import Callable
+from typing import Any
 
 import numpy as np
 from numpy.typing import ArrayLike
@@ -186,7 +187,23 @@ class CameraSuite:
         self.pending: deque[tuple[int, CameraFrame]] = deque()  # (step it goes out at, frame)
         self._next: float = 0  # the next step at which something happens (every camera exposes at step 0)
         self._last = -1  # the step of the last call of step()
+        self._taken = -1  # a step whose exposures are already pending (a restored snapshot's)
         self._draws = FrameDraws()
+
+    def snapshot(self) -> dict[str, Any]:
+        """What a restarted sim needs to deliver on from here (the resume snapshot's ``cameras_*`` fields): the
+        frames exposed and not yet out — without them a sim started again from step k would never send the frames
+        exposed in the ``latency`` steps before k, which a controller waits for."""
+        return {"cameras_step": self._last,
+                "cameras_pending": [[due, f.camera, f.step, f.t, list(f.ids), list(f.pixels), list(f.depth)]
+                                    for due, f in self.pending]}
+
+    def restore(self, snapshot: dict[str, Any]) -> None:
+        self.pending = deque((int(due), CameraFrame(str(cam), int(step), float(t), tuple(map(str, ids)),
+                                                    tuple(map(float, pixels)), tuple(map(float, depth))))
+                             for due, cam, step, t, ids, pixels, depth in snapshot.get("cameras_pending", ()))
+        self._taken = int(snapshot.get("cameras_step", -1))  # its exposures are among the pending
+        self._next, self._last = 0, -1
 
     def due(self, step: int) -> bool:
         """Whether anything happens at ``step``: a frame exposed, or one whose latency has run out. (Asked every
@@ -197,7 +214,7 @@ class CameraSuite:
     def step(self, step: int, t: float, position: ArrayLike, rotation: ArrayLike) -> list[CameraFrame]:
         """The frames exposed at ``step`` are taken; those whose latency has run out by ``step`` come back."""
         for i, cam in enumerate(self.cameras):
-            if step % cam.every == 0:
+            if step % cam.every == 0 and step != self._taken:
                 frame = measure_fast(cam, i, self.seed, step, t, position, rotation, draws=self._draws)
                 self.pending.append((step + cam.latency, frame))
         out = [frame for due, frame in self.pending if due <= step]

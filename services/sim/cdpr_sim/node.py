@@ -167,6 +167,14 @@ class SimNode(Node):
             if (applied := self.applied) is not None and (applied.age or applied.watchdog):
                 msg = replace(msg, command_age=applied.age, watchdog=int(applied.watchdog))
             self._state_msg = msg
+        camera_pose = None
+        if self.published_step != self.step and self.cameras is not None and self.cameras.due(self.step):
+            # the frames delivered at step k go out before state k: a controller that waits for its frame (IBVS)
+            # takes state k again as a frame lost, so the state must never come first — not even from a sim
+            # killed between the two and started again, which sends state k again
+            camera_pose = (msg.pose[:3], quat_matrix(*msg.pose[3:]))
+            for frame in self.cameras.step(self.step, msg.t, *camera_pose):
+                self._camera_pubs[frame.camera].put(frame.encode())
         self._pub.put(msg.encode())
         self.published_at = time.monotonic()
         if self.published_step == self.step:
@@ -180,14 +188,10 @@ class SimNode(Node):
             self.block_sensors.append(reading)
             if self._sensors_pub is not None:  # for an estimator or a monitor (Zenoh drops it if nobody listens)
                 self._sensors_pub.put(reading.encode())
-        if self.cameras is not None and self.cameras.due(self.step):
-            pose = msg.pose
-            R = quat_matrix(*pose[3:])
-            for frame in self.cameras.step(self.step, msg.t, pose[:3], R):
-                self._camera_pubs[frame.camera].put(frame.encode())
+        if camera_pose is not None:
             due = [c for c in self.scenario.cameras if c.image and self.step % c.every == 0]
             if due:
-                self.take_images(due, self.step, msg.t, np.array(pose[:3]), R)
+                self.take_images(due, self.step, msg.t, np.array(camera_pose[0]), camera_pose[1])
         if self.step >= self.total_steps:
             self.images_out()  # the last state's images too, before the last telemetry block
 
@@ -247,6 +251,8 @@ class SimNode(Node):
         snapshot = self.sim.snapshot()
         snapshot["clamped"] = self.clamped
         snapshot.update({"sensors_previous": None} if self.sensors is None else self.sensors.snapshot())
+        if self.cameras is not None:
+            snapshot.update(self.cameras.snapshot())
         return Resume(self.step, self.scenario.spec.sim.cable_model, snapshot)
 
     def on_resume(self, resume: Resume) -> None:
@@ -263,6 +269,8 @@ class SimNode(Node):
             self.clamped = int(resume.snapshot.get("clamped", 0))
             if self.sensors is not None:
                 self.sensors.restore(resume.snapshot)
+            if self.cameras is not None:
+                self.cameras.restore(resume.snapshot)
         except (ValueError, TypeError, IndexError) as exc:
             self.sim = make_sim(self.scenario)  # from the start: the clock sees a state that goes back, says so
             self.count("bad_resume")
