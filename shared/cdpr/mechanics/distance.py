@@ -24,7 +24,6 @@ from numpy.typing import ArrayLike
 
 from cdpr.mechanics.rotation import Array
 
-_PARALLEL = 1e-14  # relative: segments whose directions' cross product is below this are handled as parallel
 _NEAR_PARALLEL = 1e-8  # sin² of the angle below which segment_distances searches instead of solving (1e-4 rad)
 
 
@@ -41,35 +40,10 @@ def _clamp(x: float) -> float:
     return 0.0 if x < 0.0 else 1.0 if x > 1.0 else x
 
 
-def segment_parameters(p0: Array, p1: Array, q0: Array, q1: Array) -> tuple[Array, Array]:
-    """The parameters (s, t) in [0, 1] of the closest points of segments p0p1 and q0q1, vectorised over leading
-    axes (…, 3): the minimum of ``‖p0 + s d1 − q0 − t d2‖²`` on the unit square (Ericson, Real-Time Collision
-    Detection 5.1.9; parallel segments take s = 0, or the projection that is within)."""
-    d1, d2, r = p1 - p0, q1 - q0, p0 - q0
-    a = np.einsum("...i,...i->...", d1, d1)
-    e = np.einsum("...i,...i->...", d2, d2)
-    f = np.einsum("...i,...i->...", d2, r)
-    c = np.einsum("...i,...i->...", d1, r)
-    b = np.einsum("...i,...i->...", d1, d2)
-    with np.errstate(divide="ignore", invalid="ignore"):
-        denom = a * e - b * b
-        parallel = denom <= _PARALLEL * a * e
-        s = np.where(parallel, 0.0, np.clip((b * f - c * e) / np.where(parallel, 1.0, denom), 0.0, 1.0))
-        s = np.where(a > 0.0, s, 0.0)
-        t = np.where(e > 0.0, (b * s + f) / np.where(e > 0.0, e, 1.0), 0.0)
-        low, high = t < 0.0, t > 1.0
-        t = np.clip(t, 0.0, 1.0)
-        safe_a = np.where(a > 0.0, a, 1.0)
-        s = np.where(low | (e <= 0.0), np.clip(-c / safe_a, 0.0, 1.0),
-                     np.where(high, np.clip((b - c) / safe_a, 0.0, 1.0), s))
-        s = np.where(a > 0.0, s, 0.0)
-    return s, t
-
-
 def segment_distances(p0: Array, p1: Array, q0: Array, q1: Array) -> tuple[Array, Array, Array]:
     """(distance, s, t) of segment pairs, vectorised over leading axes (…, 3): the least of the interior stationary
-    point (:func:`segment_parameters`) and the four edges of the unit square (each end of one segment against the
-    other, clamped) — every face of the convex problem, so that nearly parallel segments, whose interior point is
+    point (Ericson, Real-Time Collision Detection 5.1.9) and the four edges of the unit square (each end of one
+    segment against the other, clamped) — every face of the convex problem, so that nearly parallel segments, whose interior point is
     ill-conditioned, are exact too; an interior point's distance is the lines' ``|r · n| / |n|``, n = d1 × d2."""
     d1, d2, r = p1 - p0, q1 - q0, p0 - q0
     a = np.einsum("...i,...i->...", d1, d1)

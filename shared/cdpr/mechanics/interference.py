@@ -141,9 +141,10 @@ def cable_platform(robot: Robot, exits: Array, points: Array, position: ArrayLik
 
 
 def clearances(robot: Robot, position: ArrayLike, R: ArrayLike, obstacles: tuple[Obstacle, ...] = (),
-               floor: float | None = None) -> Clearances:
-    """Every kind's nearest at the pose (the centre of mass at ``position``, orientation ``R``)."""
-    exits, points = spans(robot, position, R)
+               floor: float | None = None, free_spans: tuple[Array, Array] | None = None) -> Clearances:
+    """Every kind's nearest at the pose (the centre of mass at ``position``, orientation ``R``; ``free_spans``:
+    :func:`spans` of that pose, when the caller has them)."""
+    exits, points = spans(robot, position, R) if free_spans is None else free_spans
     obstacle = Nearest(np.inf)
     for ob in obstacles:
         for i in range(len(exits)):

@@ -70,9 +70,10 @@ def _pose_checks(scenario: Any, step: int, margin: float, before: tuple[int, Sid
     sample = scenario.trajectory.sample(step * scenario.dt)
     p, R = sample.position, sample.rotation
     floor = scenario.spec.scene.floor
-    c = clearances(robot, p, R, scenario.obstacles, floor)
+    free_spans = spans(robot, p, R)
+    c = clearances(robot, p, R, scenario.obstacles, floor, free_spans)
     out: list[tuple[str, float, str, bool]] = []
-    sides = pair_sides(*spans(robot, p, R))
+    sides = pair_sides(*free_spans)
     i, j, side, interior, normal = sides
     if before is not None and np.array_equal(before[1][0], i) and np.array_equal(before[1][1], j):
         _, _, side0, interior0, normal0 = before[1]
