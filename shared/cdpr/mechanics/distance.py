@@ -43,8 +43,9 @@ def _clamp(x: float) -> float:
 def segment_distances(p0: Array, p1: Array, q0: Array, q1: Array) -> tuple[Array, Array, Array]:
     """(distance, s, t) of segment pairs, vectorised over leading axes (…, 3): the least of the interior stationary
     point (Ericson, Real-Time Collision Detection 5.1.9) and the four edges of the unit square (each end of one
-    segment against the other, clamped) — every face of the convex problem, so that nearly parallel segments, whose interior point is
-    ill-conditioned, are exact too; an interior point's distance is the lines' ``|r · n| / |n|``, n = d1 × d2."""
+    segment against the other, clamped) — every face of the convex problem, so that nearly parallel segments,
+    whose interior point is ill-conditioned, are exact too; an interior point's distance is the lines'
+    ``|r · n| / |n|``, n = d1 × d2."""
     d1, d2, r = p1 - p0, q1 - q0, p0 - q0
     a = np.einsum("...i,...i->...", d1, d1)
     e = np.einsum("...i,...i->...", d2, d2)
